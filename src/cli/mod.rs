@@ -1,0 +1,71 @@
+//! Command-line interface (binary only): clap definitions, one module per subcommand, and the
+//! single place where errors become exit codes (0 success, 1 failure, 2 usage, 3 nothing found).
+
+mod profile;
+mod progress;
+mod undistort;
+
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+
+/// pipemeasure: metric pipe measurements from phone video.
+#[derive(Debug, Parser)]
+#[command(name = "pipemeasure", version, about, long_about = None)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+
+    /// Silence logs and progress bars on stderr.
+    #[arg(long, global = true)]
+    quiet: bool,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Undistort frames with a device profile into a pinhole camera, writing PNG frames and a
+    /// COLMAP cameras.txt.
+    Undistort(undistort::Args),
+    /// Show, list or convert device profiles.
+    #[command(subcommand)]
+    Profile(profile::Command),
+}
+
+/// Global options every subcommand sees.
+#[derive(Clone, Copy, Debug)]
+pub struct Globals {
+    /// `--quiet`.
+    pub quiet: bool,
+}
+
+/// Parses the command line, runs it and maps the outcome to an exit code.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse(); // clap prints usage errors itself and exits with 2
+    let globals = Globals { quiet: cli.quiet };
+    let Some(command) = cli.command else {
+        use clap::CommandFactory;
+        let _ = Cli::command().print_help();
+        return ExitCode::from(2);
+    };
+    match run(command, globals) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            exit_code_for(&err)
+        }
+    }
+}
+
+fn run(command: Command, globals: Globals) -> Result<()> {
+    match command {
+        Command::Undistort(args) => undistort::run(&args, globals),
+        Command::Profile(cmd) => profile::run(&cmd),
+    }
+}
+
+/// 1 for every failure; "nothing found" outcomes get 3 once the stages that can report them
+/// exist.
+fn exit_code_for(_err: &anyhow::Error) -> ExitCode {
+    ExitCode::from(1)
+}

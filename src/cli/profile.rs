@@ -1,0 +1,246 @@
+//! `pipemeasure profile show|list|export`.
+
+use std::fmt::Write as _;
+
+use anyhow::{Result, bail};
+use pipemeasure::camera::Term;
+use pipemeasure::camera::convert::{
+    ColmapModel, Converted, colmap_from_brown, opencv_from_brown, simplest_colmap_model,
+};
+use pipemeasure::io::colmap::{CameraId, camera_text_line};
+use pipemeasure::profile::{Profile, available_devices, load_device, resolve_device, search_dirs};
+
+/// `profile` subcommands.
+#[derive(Debug, clap::Subcommand)]
+pub enum Command {
+    /// Print a profile as a table of values ± standard deviations.
+    Show {
+        /// Device name or profile path.
+        device: String,
+        /// Print the profile JSON instead.
+        #[arg(long)]
+        json: bool,
+    },
+    /// List the devices found in $PIPEMEASURE_CALIBRATIONS and ./calibrations/.
+    List,
+    /// Print the camera in another tool's form.
+    Export {
+        /// Device name or profile path.
+        device: String,
+        /// Target tool.
+        #[arg(long, value_enum)]
+        format: Format,
+        /// COLMAP model (default: the simplest that is exact, else FULL_OPENCV fitted).
+        #[arg(long)]
+        model: Option<String>,
+    },
+}
+
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum Format {
+    /// A COLMAP cameras.txt.
+    Colmap,
+    /// An OpenCV FileStorage YAML (camera_matrix, distortion_coefficients).
+    Opencv,
+}
+
+pub fn run(cmd: &Command) -> Result<()> {
+    match cmd {
+        Command::Show { device, json } => {
+            let (path, profile) = load_device(device)?;
+            if *json {
+                println!("{}", profile.to_json());
+            } else {
+                print!("{}", show(&profile, &path.display().to_string()));
+            }
+        }
+        Command::List => {
+            let devices = available_devices();
+            if devices.is_empty() {
+                let dirs: Vec<String> = search_dirs()
+                    .iter()
+                    .map(|d| d.display().to_string())
+                    .collect();
+                bail!("no device profiles found in {}", dirs.join(", "));
+            }
+            for d in devices {
+                let path = resolve_device(&d)?;
+                println!("{d}\t{}", path.display());
+            }
+        }
+        Command::Export {
+            device,
+            format,
+            model,
+        } => {
+            let (_, profile) = load_device(device)?;
+            let text = match format {
+                Format::Colmap => export_colmap(&profile, model.as_deref())?,
+                Format::Opencv => {
+                    if model.is_some() {
+                        bail!("--model applies to --format colmap only");
+                    }
+                    export_opencv(&profile)?
+                }
+            };
+            print!("{text}");
+        }
+    }
+    Ok(())
+}
+
+/// The readable table of `profile show`.
+fn show(p: &Profile, path: &str) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "device      {}  ({path})", p.device);
+    let _ = writeln!(
+        s,
+        "image       {} x {} px, model {}",
+        p.image.width, p.image.height, p.model
+    );
+    let terms: Vec<&str> = p.terms.iter().map(|t| t.name()).collect();
+    let _ = writeln!(
+        s,
+        "estimated   {}",
+        if terms.is_empty() {
+            "none (not a calibration)".to_string()
+        } else {
+            terms.join(" ")
+        }
+    );
+    let _ = writeln!(s, "\n{:<6} {:>16}   {:>12}", "term", "value", "std dev");
+    for t in Term::ALL {
+        let v = p.intrinsics.get(t);
+        let sd = p.std_dev.get(t);
+        let estimated = p.terms.contains(&t);
+        if !estimated && v == 0.0 {
+            continue;
+        }
+        let value = if t.unit() == "px" {
+            format!("{v:.4} px")
+        } else {
+            format!("{v:.6e}")
+        };
+        let sd = if estimated {
+            format!(
+                "± {}",
+                if t.unit() == "px" {
+                    format!("{sd:.4}")
+                } else {
+                    format!("{sd:.2e}")
+                }
+            )
+        } else {
+            "fixed".into()
+        };
+        let _ = writeln!(s, "{:<6} {value:>16}   {sd:>12}", t.name());
+    }
+    let stats: Vec<String> = [
+        p.residual_rms_px.map(|v| format!("residual RMS {v:.4} px")),
+        p.sigma0.map(|v| format!("sigma0 {v:.3}")),
+        (p.images > 0).then(|| format!("{} images", p.images)),
+        (p.targets > 0).then(|| format!("{} targets", p.targets)),
+        (p.observations > 0).then(|| format!("{} observations", p.observations)),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    if !stats.is_empty() {
+        let _ = writeln!(s, "\n{}", stats.join(", "));
+    }
+    let c = &p.correlation;
+    let mut high = Vec::new();
+    for i in 0..c.names.len() {
+        for j in i + 1..c.names.len() {
+            let r = c.matrix[i][j];
+            if r.abs() > 0.9 {
+                high.push(format!("{}–{} {r:+.3}", c.names[i], c.names[j]));
+            }
+        }
+    }
+    if !c.names.is_empty() {
+        let _ = writeln!(
+            s,
+            "correlations above 0.9: {}",
+            if high.is_empty() {
+                "none".into()
+            } else {
+                high.join(", ")
+            }
+        );
+    }
+    if !p.provenance.is_empty() {
+        let _ = writeln!(s, "\nprovenance");
+        for (k, v) in &p.provenance {
+            let v = v.as_str().map_or_else(|| v.to_string(), str::to_string);
+            let _ = writeln!(s, "  {k}: {v}");
+        }
+    }
+    s
+}
+
+fn conversion_note<T>(c: &Converted<T>) -> String {
+    if c.exact {
+        format!(
+            "exact conversion (max difference {:.1e} px over the image)",
+            c.max_error_px
+        )
+    } else {
+        format!(
+            "least-squares fit: this model lacks {}; max error {:.4} px, RMS {:.4} px over the image",
+            c.missing_terms.join(", "),
+            c.max_error_px,
+            c.rms_error_px
+        )
+    }
+}
+
+fn export_colmap(p: &Profile, model: Option<&str>) -> Result<String> {
+    let cam = p.camera();
+    let model = match model {
+        Some(name) => match ColmapModel::from_name(&name.to_ascii_uppercase()) {
+            Some(m) if ColmapModel::CONVERTIBLE.contains(&m) => m,
+            _ => bail!(
+                "--model {name}: expected one of {}",
+                ColmapModel::CONVERTIBLE.map(ColmapModel::name).join(", ")
+            ),
+        },
+        None => simplest_colmap_model(&cam),
+    };
+    let c = colmap_from_brown(&cam, model)?;
+    if !c.exact {
+        eprintln!("warning: {}", conversion_note(&c));
+    }
+    Ok(format!(
+        "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n# pipemeasure device {}: {}\n{}\n",
+        p.device,
+        conversion_note(&c),
+        camera_text_line(CameraId(1), &c.camera)
+    ))
+}
+
+fn export_opencv(p: &Profile) -> Result<String> {
+    let c = opencv_from_brown(&p.camera())?;
+    if !c.exact {
+        eprintln!("warning: {}", conversion_note(&c));
+    }
+    let k = c.camera.camera_matrix;
+    let fmt = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:?}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    Ok(format!(
+        "%YAML:1.0\n---\n# pipemeasure device {}: {}\nimage_width: {}\nimage_height: {}\ncamera_matrix: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n   data: [ {} ]\ndistortion_coefficients: !!opencv-matrix\n   rows: 1\n   cols: 5\n   dt: d\n   data: [ {} ]\nconversion_max_error_px: {:?}\n",
+        p.device,
+        conversion_note(&c),
+        c.camera.width,
+        c.camera.height,
+        fmt(&[
+            k[0][0], k[0][1], k[0][2], k[1][0], k[1][1], k[1][2], k[2][0], k[2][1], k[2][2]
+        ]),
+        fmt(&c.camera.dist_coeffs),
+        c.max_error_px
+    ))
+}

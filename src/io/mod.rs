@@ -1,0 +1,12 @@
+//! Readers and writers for the files users bring and the files pipemeasure writes (layer 2):
+//! COLMAP sparse models, PLY clouds, frames, TLS target lists; atomic writes.
+//!
+//! Every read error names the file and, where it has one, the line (or byte offset).
+
+pub mod atomic;
+pub mod colmap;
+pub mod error;
+pub mod frames;
+pub mod ply;
+
+pub use error::{Location, ReadError, ReadErrorKind, WriteError};

@@ -1,0 +1,578 @@
+//! Device profiles: `calibrations/NAME.json` (schema `pipemeasure.profile/1`, DESIGN.md
+//! "Conventions"), their validation, and the `--device` lookup.
+//!
+//! `--device` takes a profile name, looked up as `NAME.json` in `$PIPEMEASURE_CALIBRATIONS` and
+//! then in `./calibrations/`, or a path to a profile file.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::camera::{BrownCamera, Intrinsics, Term};
+use crate::io::atomic::write_bytes_atomic;
+use crate::io::error::{ReadError, ReadErrorKind, WriteError, open_error};
+
+/// The schema tag of this profile format.
+pub const PROFILE_SCHEMA: &str = "pipemeasure.profile/1";
+/// Environment variable naming a folder of profiles, searched before `./calibrations/`.
+pub const CALIBRATIONS_ENV: &str = "PIPEMEASURE_CALIBRATIONS";
+/// The default profile folder, relative to the working directory.
+pub const CALIBRATIONS_DIR: &str = "calibrations";
+
+/// Image size in pixels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImageSize {
+    /// Width (px).
+    pub width: u32,
+    /// Height (px).
+    pub height: u32,
+}
+
+/// Standard deviations of the intrinsics (0 for terms not estimated).
+#[derive(Clone, Copy, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StdDev {
+    /// σ of c (px).
+    pub c: f64,
+    /// σ of u0 (px).
+    pub u0: f64,
+    /// σ of v0 (px).
+    pub v0: f64,
+    /// σ of k1.
+    pub k1: f64,
+    /// σ of k2.
+    pub k2: f64,
+    /// σ of k3.
+    pub k3: f64,
+    /// σ of p1.
+    pub p1: f64,
+    /// σ of p2.
+    pub p2: f64,
+    /// σ of b1 (px).
+    pub b1: f64,
+    /// σ of b2 (px).
+    pub b2: f64,
+}
+
+impl StdDev {
+    /// The σ of one term.
+    #[must_use]
+    pub fn get(&self, term: Term) -> f64 {
+        [
+            self.c, self.u0, self.v0, self.k1, self.k2, self.k3, self.p1, self.p2, self.b1, self.b2,
+        ][term.index()]
+    }
+
+    /// Sets the σ of one term.
+    pub fn set(&mut self, term: Term, value: f64) {
+        let slot = match term {
+            Term::C => &mut self.c,
+            Term::U0 => &mut self.u0,
+            Term::V0 => &mut self.v0,
+            Term::K1 => &mut self.k1,
+            Term::K2 => &mut self.k2,
+            Term::K3 => &mut self.k3,
+            Term::P1 => &mut self.p1,
+            Term::P2 => &mut self.p2,
+            Term::B1 => &mut self.b1,
+            Term::B2 => &mut self.b2,
+        };
+        *slot = value;
+    }
+}
+
+/// Correlation coefficients of the estimated intrinsics.
+#[derive(Clone, Debug, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Correlation {
+    /// The terms, in matrix order.
+    pub names: Vec<Term>,
+    /// Symmetric matrix with a unit diagonal.
+    pub matrix: Vec<Vec<f64>>,
+}
+
+/// A device profile: the calibrated camera of one phone and how it was obtained.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Profile {
+    /// Always [`PROFILE_SCHEMA`].
+    pub schema: String,
+    /// Device name (e.g. `p30`).
+    pub device: String,
+    /// Frame size the intrinsics refer to.
+    pub image: ImageSize,
+    /// Camera model; always `"brown"`.
+    pub model: String,
+    /// The terms that were estimated (the others are fixed, normally at 0).
+    pub terms: Vec<Term>,
+    /// The intrinsics.
+    pub intrinsics: Intrinsics,
+    /// Their standard deviations.
+    #[serde(default)]
+    pub std_dev: StdDev,
+    /// Correlations of the estimated terms.
+    #[serde(default)]
+    pub correlation: Correlation,
+    /// RMS of the image residuals of the calibration (px), if calibrated.
+    #[serde(default)]
+    pub residual_rms_px: Option<f64>,
+    /// A-posteriori standard deviation of unit weight, if calibrated.
+    #[serde(default)]
+    pub sigma0: Option<f64>,
+    /// Frames used.
+    #[serde(default)]
+    pub images: usize,
+    /// Targets used.
+    #[serde(default)]
+    pub targets: usize,
+    /// Image observations used.
+    #[serde(default)]
+    pub observations: usize,
+    /// Where the profile came from (tool, version, command, data, date, notes).
+    #[serde(default)]
+    pub provenance: BTreeMap<String, serde_json::Value>,
+}
+
+/// Why a profile could not be found, read or accepted.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ProfileError {
+    /// No profile of that name in the search path.
+    #[error(
+        "unknown device `{name}`: no {name}.json in {searched}; available devices: {available}"
+    )]
+    UnknownDevice {
+        /// The name asked for.
+        name: String,
+        /// The folders searched, for the message.
+        searched: String,
+        /// Devices found, for the message.
+        available: String,
+    },
+    /// The file could not be read or parsed.
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    /// The profile parsed but a value is unacceptable.
+    #[error("{}: field `{field}` {reason}", .path.display())]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// Path of the field, e.g. `intrinsics.c`.
+        field: String,
+        /// What is wrong with it.
+        reason: String,
+    },
+    /// The profile could not be written.
+    #[error(transparent)]
+    Write(#[from] WriteError),
+    /// A profile exists where one would be written.
+    #[error("{} exists; pass --force to replace it (the old one is kept as {}.bak)", .0.display(), .0.display())]
+    Exists(PathBuf),
+}
+
+impl Profile {
+    /// A profile for a camera that has not been calibrated (σ = 0, no statistics), with the given
+    /// provenance; used for nominal and imported cameras.
+    #[must_use]
+    pub fn uncalibrated(
+        device: &str,
+        camera: &BrownCamera,
+        provenance: BTreeMap<String, serde_json::Value>,
+    ) -> Self {
+        Profile {
+            schema: PROFILE_SCHEMA.into(),
+            device: device.into(),
+            image: ImageSize {
+                width: camera.width,
+                height: camera.height,
+            },
+            model: "brown".into(),
+            terms: Vec::new(),
+            intrinsics: camera.intrinsics,
+            std_dev: StdDev::default(),
+            correlation: Correlation::default(),
+            residual_rms_px: None,
+            sigma0: None,
+            images: 0,
+            targets: 0,
+            observations: 0,
+            provenance,
+        }
+    }
+
+    /// The camera this profile describes.
+    #[must_use]
+    pub fn camera(&self) -> BrownCamera {
+        BrownCamera {
+            width: self.image.width,
+            height: self.image.height,
+            intrinsics: self.intrinsics,
+        }
+    }
+
+    /// Parses and validates a profile from JSON text; `path` is used in errors.
+    ///
+    /// # Errors
+    ///
+    /// [`ProfileError::Read`] with the field path (e.g. `intrinsics.c`) when the JSON does not
+    /// match the schema; [`ProfileError::Invalid`] naming the field when a value is unacceptable.
+    pub fn from_json(text: &str, path: &Path) -> Result<Self, ProfileError> {
+        let de = &mut serde_json::Deserializer::from_str(text);
+        let profile: Profile = serde_path_to_error::deserialize(de).map_err(|e| {
+            let field = e.path().to_string();
+            let inner = e.into_inner();
+            let line = inner.line();
+            let kind = ReadErrorKind::Json {
+                field: if field == "." {
+                    "(document)".into()
+                } else {
+                    field
+                },
+                message: strip_position(&inner.to_string()),
+            };
+            if line > 0 {
+                ReadError::at_line(path, line, kind)
+            } else {
+                ReadError::new(path, kind)
+            }
+        })?;
+        profile.validate(path)?;
+        Ok(profile)
+    }
+
+    /// Reads and validates a profile file.
+    ///
+    /// # Errors
+    ///
+    /// As [`Profile::from_json`], plus a missing or unreadable file.
+    pub fn read(path: &Path) -> Result<Self, ProfileError> {
+        let text = std::fs::read_to_string(path).map_err(|e| open_error(path, e))?;
+        Self::from_json(&text, path)
+    }
+
+    /// Checks every value; `path` is used in errors.
+    ///
+    /// # Errors
+    ///
+    /// [`ProfileError::Invalid`] naming the first unacceptable field.
+    pub fn validate(&self, path: &Path) -> Result<(), ProfileError> {
+        let invalid = |field: &str, reason: String| ProfileError::Invalid {
+            path: path.to_path_buf(),
+            field: field.to_string(),
+            reason,
+        };
+        if self.schema != PROFILE_SCHEMA {
+            return Err(invalid(
+                "schema",
+                format!("is {:?}, expected {PROFILE_SCHEMA:?}", self.schema),
+            ));
+        }
+        if self.model != "brown" {
+            return Err(invalid(
+                "model",
+                format!("is {:?}, expected \"brown\"", self.model),
+            ));
+        }
+        if self.device.trim().is_empty() {
+            return Err(invalid("device", "is empty".into()));
+        }
+        if self.image.width == 0 {
+            return Err(invalid("image.width", "must be positive".into()));
+        }
+        if self.image.height == 0 {
+            return Err(invalid("image.height", "must be positive".into()));
+        }
+        for term in Term::ALL {
+            let v = self.intrinsics.get(term);
+            if !v.is_finite() {
+                return Err(invalid(
+                    &format!("intrinsics.{term}"),
+                    format!("is {v}, not a finite number"),
+                ));
+            }
+            let s = self.std_dev.get(term);
+            if !(s.is_finite() && s >= 0.0) {
+                return Err(invalid(
+                    &format!("std_dev.{term}"),
+                    format!("is {s}, expected a finite value ≥ 0"),
+                ));
+            }
+        }
+        if self.intrinsics.c <= 0.0 {
+            return Err(invalid(
+                "intrinsics.c",
+                format!("is {}, must be positive", self.intrinsics.c),
+            ));
+        }
+        if self.intrinsics.c + self.intrinsics.b1 <= 0.0 {
+            return Err(invalid("intrinsics.b1", "makes c + b1 non-positive".into()));
+        }
+        let mut seen = std::collections::BTreeSet::new();
+        for t in &self.terms {
+            if !seen.insert(*t) {
+                return Err(invalid("terms", format!("lists {t} twice")));
+            }
+        }
+        let n = self.correlation.names.len();
+        if self.correlation.matrix.len() != n {
+            return Err(invalid(
+                "correlation.matrix",
+                format!("has {} rows for {n} names", self.correlation.matrix.len()),
+            ));
+        }
+        for (i, row) in self.correlation.matrix.iter().enumerate() {
+            if row.len() != n {
+                return Err(invalid(
+                    &format!("correlation.matrix[{i}]"),
+                    format!("has {} entries, expected {n}", row.len()),
+                ));
+            }
+            for (j, &v) in row.iter().enumerate() {
+                let sym = self.correlation.matrix[j][i];
+                let ok = v.is_finite()
+                    && (-1.0 - 1e-9..=1.0 + 1e-9).contains(&v)
+                    && (v - sym).abs() <= 1e-9;
+                let diag_ok = i != j || (v - 1.0).abs() <= 1e-9;
+                if !ok || !diag_ok {
+                    return Err(invalid(
+                        &format!("correlation.matrix[{i}][{j}]"),
+                        format!(
+                            "is {v}: a correlation matrix is symmetric, in [-1, 1], with 1 on the diagonal"
+                        ),
+                    ));
+                }
+            }
+        }
+        for (name, v) in [
+            ("residual_rms_px", self.residual_rms_px),
+            ("sigma0", self.sigma0),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && v >= 0.0)
+            {
+                return Err(invalid(
+                    name,
+                    format!("is {v}, expected a finite value ≥ 0"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The profile as pretty JSON.
+    ///
+    /// # Panics
+    ///
+    /// Never: every field serialises.
+    #[must_use]
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self)
+            .unwrap_or_else(|e| unreachable!("profile serialises: {e}"))
+    }
+
+    /// Writes the profile atomically. An existing file is refused unless `force`, in which case
+    /// it is first copied to `PATH.bak`.
+    ///
+    /// # Errors
+    ///
+    /// [`ProfileError::Exists`], [`ProfileError::Write`].
+    pub fn write(&self, path: &Path, force: bool) -> Result<(), ProfileError> {
+        if path.exists() {
+            if !force {
+                return Err(ProfileError::Exists(path.to_path_buf()));
+            }
+            let backup = PathBuf::from(format!("{}.bak", path.display()));
+            std::fs::copy(path, &backup).map_err(|e| WriteError::new(&backup, e))?;
+        }
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|e| WriteError::new(dir, e))?;
+        }
+        write_bytes_atomic(path, format!("{}\n", self.to_json()).as_bytes())?;
+        Ok(())
+    }
+}
+
+/// serde_json appends " at line L column C" to messages; the location is reported separately.
+fn strip_position(message: &str) -> String {
+    match message.rfind(" at line ") {
+        Some(i) => message[..i].to_string(),
+        None => message.to_string(),
+    }
+}
+
+/// The folders searched for profiles by name, in order.
+#[must_use]
+pub fn search_dirs() -> Vec<PathBuf> {
+    let mut dirs = Vec::new();
+    if let Some(env) = std::env::var_os(CALIBRATIONS_ENV).filter(|v| !v.is_empty()) {
+        dirs.push(PathBuf::from(env));
+    }
+    dirs.push(PathBuf::from(CALIBRATIONS_DIR));
+    dirs
+}
+
+/// Device names available in the search folders (file stems of `*.json`), sorted, unique.
+#[must_use]
+pub fn available_devices() -> Vec<String> {
+    let mut names: Vec<String> = search_dirs()
+        .iter()
+        .filter_map(|d| std::fs::read_dir(d).ok())
+        .flatten()
+        .filter_map(|e| {
+            let p = e.ok()?.path();
+            (p.extension()? == "json").then(|| p.file_stem()?.to_str().map(str::to_string))?
+        })
+        .collect();
+    names.sort();
+    names.dedup();
+    names
+}
+
+/// Whether `--device` names a file rather than a device.
+fn looks_like_path(spec: &str) -> bool {
+    spec.contains('/') || spec.contains(std::path::MAIN_SEPARATOR) || spec.ends_with(".json")
+}
+
+/// Resolves `--device` to a profile file.
+///
+/// # Errors
+///
+/// [`ProfileError::UnknownDevice`] listing the available devices, or a not-found read error for
+/// a path.
+pub fn resolve_device(spec: &str) -> Result<PathBuf, ProfileError> {
+    if looks_like_path(spec) {
+        let p = PathBuf::from(spec);
+        if p.is_file() {
+            return Ok(p);
+        }
+        return Err(ReadError::new(p, ReadErrorKind::NotFound).into());
+    }
+    let dirs = search_dirs();
+    for d in &dirs {
+        let p = d.join(format!("{spec}.json"));
+        if p.is_file() {
+            return Ok(p);
+        }
+    }
+    let available = available_devices();
+    Err(ProfileError::UnknownDevice {
+        name: spec.to_string(),
+        searched: dirs
+            .iter()
+            .map(|d| d.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+        available: if available.is_empty() {
+            "none".into()
+        } else {
+            available.join(", ")
+        },
+    })
+}
+
+/// Resolves and reads `--device`.
+///
+/// # Errors
+///
+/// As [`resolve_device`] and [`Profile::read`].
+pub fn load_device(spec: &str) -> Result<(PathBuf, Profile), ProfileError> {
+    let path = resolve_device(spec)?;
+    let profile = Profile::read(&path)?;
+    Ok((path, profile))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> Profile {
+        let cam = BrownCamera {
+            width: 3840,
+            height: 2160,
+            intrinsics: Intrinsics {
+                k1: 0.01,
+                ..Intrinsics::pinhole(3000.0, 1920.0, 1080.0)
+            },
+        };
+        let mut p = Profile::uncalibrated("test", &cam, BTreeMap::new());
+        p.terms = vec![Term::C, Term::U0, Term::V0, Term::K1];
+        p.std_dev.c = 0.5;
+        p.correlation = Correlation {
+            names: vec![Term::C, Term::K1],
+            matrix: vec![vec![1.0, -0.3], vec![-0.3, 1.0]],
+        };
+        p.residual_rms_px = Some(0.05);
+        p
+    }
+
+    #[test]
+    fn json_round_trip() {
+        let p = sample();
+        let back = Profile::from_json(&p.to_json(), Path::new("x.json")).unwrap();
+        assert_eq!(back, p);
+    }
+
+    #[track_caller]
+    fn error_for(edit: impl Fn(&mut serde_json::Value)) -> String {
+        let mut v: serde_json::Value = serde_json::from_str(&sample().to_json()).unwrap();
+        edit(&mut v);
+        let text = serde_json::to_string_pretty(&v).unwrap();
+        Profile::from_json(&text, Path::new("p.json"))
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn malformed_profiles_name_the_field() {
+        let e = error_for(|v| v["intrinsics"]["c"] = "big".into());
+        assert!(e.contains("p.json") && e.contains("intrinsics.c"), "{e}");
+        let e = error_for(|v| {
+            v["intrinsics"].as_object_mut().unwrap().remove("u0");
+        });
+        assert!(
+            e.contains("intrinsics") && e.contains("missing field `u0`"),
+            "{e}"
+        );
+        let e = error_for(|v| v["intrinsics"]["k_1"] = 0.1.into());
+        assert!(e.contains("intrinsics") && e.contains("k_1"), "{e}");
+        let e = error_for(|v| v["intrinsics"]["c"] = (-5.0).into());
+        assert!(
+            e.contains("field `intrinsics.c`") && e.contains("positive"),
+            "{e}"
+        );
+        let e = error_for(|v| v["image"]["width"] = 0.into());
+        assert!(e.contains("image.width"), "{e}");
+        let e = error_for(|v| v["schema"] = "pipemeasure.profile/9".into());
+        assert!(e.contains("field `schema`"), "{e}");
+        let e = error_for(|v| v["terms"] = serde_json::json!(["c", "k9"]));
+        assert!(e.contains("terms[1]") && e.contains("k9"), "{e}");
+        let e = error_for(|v| v["correlation"]["matrix"][0][1] = 0.5.into());
+        assert!(e.contains("correlation.matrix[0][1]"), "{e}");
+        let e = error_for(|v| v["std_dev"]["k1"] = (-1.0).into());
+        assert!(e.contains("std_dev.k1"), "{e}");
+        let e = Profile::from_json("{\"schema\": ", Path::new("p.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.starts_with("p.json:1"), "{e}");
+    }
+
+    #[test]
+    fn write_refuses_to_overwrite_without_force_and_keeps_a_backup() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("dev.json");
+        let p = sample();
+        p.write(&path, false).unwrap();
+        assert!(matches!(
+            p.write(&path, false),
+            Err(ProfileError::Exists(_))
+        ));
+        let mut q = p.clone();
+        q.intrinsics.c = 3001.0;
+        q.write(&path, true).unwrap();
+        assert_eq!(Profile::read(&path).unwrap().intrinsics.c, 3001.0);
+        let backup = dir.path().join("dev.json.bak");
+        assert_eq!(Profile::read(&backup).unwrap().intrinsics.c, 3000.0);
+    }
+}

@@ -1,0 +1,253 @@
+//! The command line: exit codes, messages that name the file or field, no partial output.
+#![allow(clippy::unwrap_used)]
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use common::pipemeasure;
+use image::{DynamicImage, ImageBuffer, Rgb};
+use pipemeasure::io::colmap::{CameraId, ColmapModel, ModelFormat, Reconstruction};
+use pipemeasure::profile::Profile;
+use pipemeasure::sim::devices::{P30, preset_camera};
+
+/// A small profile of the p30 preset at 320×180 written to `dir/p30small.json`.
+fn small_profile(dir: &Path) -> std::path::PathBuf {
+    let cam = preset_camera(&P30, 320, 180);
+    let p = Profile::uncalibrated("p30small", &cam, BTreeMap::new());
+    let path = dir.join("p30small.json");
+    p.write(&path, false).unwrap();
+    path
+}
+
+fn frame(w: u32, h: u32) -> DynamicImage {
+    DynamicImage::ImageRgb8(ImageBuffer::from_fn(w, h, |x, y| {
+        Rgb([(x % 256) as u8, (y % 256) as u8, 128])
+    }))
+}
+
+#[test]
+fn undistort_writes_frames_and_a_pinhole_cameras_txt() {
+    let dir = tempfile::tempdir().unwrap();
+    let profile = small_profile(dir.path());
+    let input = dir.path().join("frames");
+    std::fs::create_dir(&input).unwrap();
+    frame(320, 180).save(input.join("a.png")).unwrap();
+    frame(320, 180).save(input.join("b.jpg")).unwrap();
+    let out = dir.path().join("out");
+    let (code, stdout, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "undistort",
+            "--device",
+            profile.to_str().unwrap(),
+            "frames",
+            "out",
+            "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("undistorted 2 frames"), "{stdout}");
+    for name in ["a.png", "b.png"] {
+        let img = image::open(out.join(name)).unwrap();
+        assert_eq!((img.width(), img.height()), (320, 180));
+    }
+    // cameras.txt is a COLMAP PINHOLE camera with fx = fy = c and the same principal point.
+    std::fs::write(out.join("images.txt"), "").unwrap();
+    std::fs::write(out.join("points3D.txt"), "").unwrap();
+    let model = Reconstruction::read_format(&out, ModelFormat::Text).unwrap();
+    let cam = &model.cameras[&CameraId(1)];
+    let truth = preset_camera(&P30, 320, 180).intrinsics;
+    assert_eq!(cam.model, ColmapModel::Pinhole);
+    assert_eq!(cam.params, vec![truth.c, truth.c, truth.u0, truth.v0]);
+}
+
+#[test]
+fn undistort_bad_inputs_fail_cleanly() {
+    let dir = tempfile::tempdir().unwrap();
+    let profile = small_profile(dir.path());
+    let prof = profile.to_str().unwrap();
+
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &["undistort", "--device", prof, "missing", "out"],
+        &[],
+    );
+    assert_eq!(code, 1);
+    assert!(stderr.contains("missing: not found"), "{stderr}");
+
+    let input = dir.path().join("frames");
+    std::fs::create_dir(&input).unwrap();
+    frame(320, 180).save(input.join("a.png")).unwrap();
+    frame(640, 360).save(input.join("b.png")).unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &["undistort", "--device", prof, "frames", "out"],
+        &[],
+    );
+    assert_eq!(code, 1);
+    assert!(
+        stderr.contains("b.png is 640x360") && stderr.contains("320x180"),
+        "{stderr}"
+    );
+    assert!(
+        !dir.path().join("out").exists(),
+        "nothing may be written when a frame is wrong"
+    );
+
+    std::fs::remove_file(input.join("b.png")).unwrap();
+    std::fs::write(input.join("c.png"), b"this is not a png").unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &["undistort", "--device", prof, "frames", "out"],
+        &[],
+    );
+    assert_eq!(code, 1);
+    assert!(stderr.contains("c.png"), "{stderr}");
+    assert!(!dir.path().join("out").exists());
+
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &["undistort", "--device", "nokia", "frames", "out"],
+        &[],
+    );
+    assert_eq!(code, 1);
+    assert!(stderr.contains("unknown device `nokia`"), "{stderr}");
+}
+
+#[test]
+fn device_lookup_uses_env_then_calibrations_and_lists_devices() {
+    let dir = tempfile::tempdir().unwrap();
+    let env_dir = dir.path().join("env");
+    let local = dir.path().join("calibrations");
+    std::fs::create_dir_all(&env_dir).unwrap();
+    std::fs::create_dir_all(&local).unwrap();
+    let cam = preset_camera(&P30, 320, 180);
+    let mut a = Profile::uncalibrated("alpha", &cam, BTreeMap::new());
+    a.write(&env_dir.join("alpha.json"), false).unwrap();
+    a.intrinsics.c += 1.0;
+    a.write(&local.join("alpha.json"), false).unwrap();
+    Profile::uncalibrated("beta", &cam, BTreeMap::new())
+        .write(&local.join("beta.json"), false)
+        .unwrap();
+    let env = [("PIPEMEASURE_CALIBRATIONS", env_dir.to_str().unwrap())];
+
+    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "show", "alpha", "--json"], &env);
+    assert_eq!(code, 0);
+    let shown = Profile::from_json(&stdout, Path::new("stdout")).unwrap();
+    assert_eq!(
+        shown.intrinsics.c, cam.intrinsics.c,
+        "the env folder wins over ./calibrations"
+    );
+
+    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "show", "alpha", "--json"], &[]);
+    assert_eq!(code, 0);
+    assert_eq!(
+        Profile::from_json(&stdout, Path::new("stdout"))
+            .unwrap()
+            .intrinsics
+            .c,
+        cam.intrinsics.c + 1.0
+    );
+
+    let (code, _, stderr) = pipemeasure(dir.path(), &["profile", "show", "gamma"], &env);
+    assert_eq!(code, 1);
+    assert!(
+        stderr.contains("available devices: alpha, beta"),
+        "{stderr}"
+    );
+
+    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "list"], &env);
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains("alpha\t") && stdout.contains("beta\t"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn malformed_profile_names_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = small_profile(dir.path());
+    let text = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace("\"v0\": ", "\"v0\": \"oops\", \"x\": ");
+    std::fs::write(&path, text).unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &["profile", "show", path.to_str().unwrap()],
+        &[],
+    );
+    assert_eq!(code, 1);
+    assert!(
+        stderr.contains("p30small.json:") && stderr.contains("intrinsics.v0"),
+        "{stderr}"
+    );
+}
+
+#[test]
+fn profile_show_and_export() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = small_profile(dir.path());
+    let p = path.to_str().unwrap();
+    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "show", p], &[]);
+    assert_eq!(code, 0);
+    let c = format!("{:.4} px", preset_camera(&P30, 320, 180).intrinsics.c);
+    assert!(
+        stdout.contains("320 x 180") && stdout.contains(&c),
+        "{stdout}"
+    );
+
+    let (code, stdout, _) = pipemeasure(
+        dir.path(),
+        &["profile", "export", p, "--format", "colmap"],
+        &[],
+    );
+    assert_eq!(code, 0);
+    assert!(stdout.contains("exact conversion"), "{stdout}");
+    let cams = dir.path().join("cams");
+    std::fs::create_dir(&cams).unwrap();
+    std::fs::write(cams.join("cameras.txt"), &stdout).unwrap();
+    std::fs::write(cams.join("images.txt"), "").unwrap();
+    std::fs::write(cams.join("points3D.txt"), "").unwrap();
+    let model = Reconstruction::read(&cams).unwrap();
+    let c = &model.cameras[&CameraId(1)];
+    let i = preset_camera(&P30, 320, 180).intrinsics;
+    assert_eq!(c.model, ColmapModel::Opencv);
+    assert_eq!(c.params, vec![i.c, i.c, i.u0, i.v0, i.k1, i.k2, i.p1, i.p2]);
+
+    let (code, stdout, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "profile", "export", p, "--format", "colmap", "--model", "radial",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0);
+    assert!(
+        stdout.contains("least-squares fit") && stderr.contains("lacks p1, p2"),
+        "{stdout}{stderr}"
+    );
+
+    let (code, stdout, _) = pipemeasure(
+        dir.path(),
+        &["profile", "export", p, "--format", "opencv"],
+        &[],
+    );
+    assert_eq!(code, 0);
+    assert!(
+        stdout.starts_with("%YAML:1.0")
+            && stdout.contains(&format!("{:?}, 0.0, {:?}", i.c, i.u0 - 0.5)),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn usage_errors_exit_with_2() {
+    let dir = tempfile::tempdir().unwrap();
+    assert_eq!(pipemeasure(dir.path(), &[], &[]).0, 2);
+    assert_eq!(pipemeasure(dir.path(), &["undistort"], &[]).0, 2);
+    assert_eq!(pipemeasure(dir.path(), &["--no-such-flag"], &[]).0, 2);
+}

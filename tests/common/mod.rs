@@ -1,0 +1,46 @@
+//! Helpers shared by integration tests.
+#![allow(dead_code, clippy::unwrap_used)]
+
+use image::{ImageBuffer, Luma};
+use nalgebra::Vector2;
+use pipemeasure::camera::BrownCamera;
+
+/// Renders a frame of `cam` by point-sampling `f` at the ideal normalised coordinates of every
+/// pixel centre (exact lens distortion, no image warp). `f` returns 16-bit grey levels.
+pub fn render_distorted(
+    cam: &BrownCamera,
+    f: impl Fn(&Vector2<f64>) -> f64 + Sync,
+) -> ImageBuffer<Luma<u16>, Vec<u16>> {
+    use rayon::prelude::*;
+    let w = cam.width as usize;
+    let mut data = vec![0u16; w * cam.height as usize];
+    data.par_chunks_mut(w).enumerate().for_each(|(row, line)| {
+        for (col, px) in line.iter_mut().enumerate() {
+            let uv = Vector2::new(col as f64 + 0.5, row as f64 + 0.5);
+            let xy = cam.intrinsics.ideal_from_pixel(&uv).unwrap();
+            *px = f(&xy).round().clamp(0.0, 65535.0) as u16;
+        }
+    });
+    ImageBuffer::from_raw(cam.width, cam.height, data).unwrap()
+}
+
+/// Runs the pipemeasure binary with `args` in `cwd`, returning (exit code, stdout, stderr).
+pub fn pipemeasure(
+    cwd: &std::path::Path,
+    args: &[&str],
+    env: &[(&str, &str)],
+) -> (i32, String, String) {
+    let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_pipemeasure"));
+    cmd.current_dir(cwd)
+        .args(args)
+        .env_remove("PIPEMEASURE_CALIBRATIONS");
+    for (k, v) in env {
+        cmd.env(k, v);
+    }
+    let out = cmd.output().unwrap();
+    (
+        out.status.code().unwrap_or(-1),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
