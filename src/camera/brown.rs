@@ -325,10 +325,46 @@ impl Intrinsics {
         self.pixel_from_distorted(&self.distort(xy))
     }
 
-    /// Projects a point of the camera frame; `None` behind or on the camera plane (`Z ≤ 0`).
+    /// Projects a point of the camera frame; `None` behind or on the camera plane (`Z ≤ 0`) or
+    /// beyond the radius where the radial distortion folds back (such rays lie outside the
+    /// lens's field; the polynomial would map them to arbitrary pixels, even inside the image).
     #[must_use]
     pub fn project(&self, p_cam: &Vector3<f64>) -> Option<Vector2<f64>> {
-        (p_cam.z > 0.0).then(|| self.pixel_from_ideal(&(Vector2::new(p_cam.x, p_cam.y) / p_cam.z)))
+        if p_cam.z <= 0.0 {
+            return None;
+        }
+        let xy = Vector2::new(p_cam.x, p_cam.y) / p_cam.z;
+        self.in_valid_region(xy.norm_squared())
+            .then(|| self.pixel_from_ideal(&xy))
+    }
+
+    /// Whether the radial map `r·radial(r)` is increasing on `[0, r]` (`r2 = r²`): the region
+    /// where the model is invertible. Exact: `g(s) = 1 + 3·k1·s + 5·k2·s² + 7·k3·s³` must stay
+    /// positive on `[0, r²]`, checked at `r²` and at the stationary points of `g` inside.
+    #[must_use]
+    pub fn in_valid_region(&self, r2: f64) -> bool {
+        let g = |s: f64| 1.0 + s * (3.0 * self.k1 + s * (5.0 * self.k2 + s * 7.0 * self.k3));
+        let at_r = g(r2);
+        if at_r <= 0.0 || at_r.is_nan() {
+            return false;
+        }
+        // g'(s) = 3·k1 + 10·k2·s + 21·k3·s².
+        let (a, b, c) = (21.0 * self.k3, 10.0 * self.k2, 3.0 * self.k1);
+        let roots: [Option<f64>; 2] = if a == 0.0 {
+            [(b != 0.0).then(|| -c / b), None]
+        } else {
+            let d = b * b - 4.0 * a * c;
+            if d < 0.0 {
+                [None, None]
+            } else {
+                let sq = d.sqrt();
+                [Some((-b - sq) / (2.0 * a)), Some((-b + sq) / (2.0 * a))]
+            }
+        };
+        roots
+            .into_iter()
+            .flatten()
+            .all(|s| !(s > 0.0 && s < r2) || g(s) > 0.0)
     }
 
     /// The largest normalised radius up to which the radial map `r·radial(r)` is increasing,
@@ -440,6 +476,9 @@ impl Intrinsics {
         }
         let iz = 1.0 / p_cam.z;
         let xy = Vector2::new(p_cam.x * iz, p_cam.y * iz);
+        if !self.in_valid_region(xy.norm_squared()) {
+            return None;
+        }
         let (x, y) = (xy.x, xy.y);
         let (xy_d, d_xyd_d_xy) = self.distort_with_jacobian(&xy);
         let (xd, yd) = (xy_d.x, xy_d.y);
@@ -662,6 +701,40 @@ mod tests {
         assert!(
             cam.ideal_from_pixel(&Vector2::new(500.0 + 800.0, 500.0))
                 .is_ok()
+        );
+    }
+
+    #[test]
+    fn projection_beyond_the_fold_is_none() {
+        // p30-like k1 > 0, k2 < 0 folds at r² = 5.03 (r = 2.24); a point at r = 3.4 would be
+        // mapped back inside the image by the polynomial.
+        let cam = Intrinsics {
+            k1: 0.0125,
+            k2: -0.0094,
+            ..Intrinsics::pinhole(762.5, 480.0, 270.0)
+        };
+        let r = cam.max_valid_radius();
+        assert!((r - 2.2428).abs() < 1e-3, "fold radius {r}");
+        assert!(cam.project(&Vector3::new(3.17, 1.27, 1.0)).is_none());
+        assert!(cam.project(&Vector3::new(r * 0.999, 0.0, 1.0)).is_some());
+        assert!(cam.project(&Vector3::new(r * 1.001, 0.0, 1.0)).is_none());
+        // k1 = −0.5, k2 = 0.2: g = 1 − 1.5s + s² has its minimum 0.4375 at s = 0.75, never
+        // reaching zero: valid everywhere.
+        let dip = Intrinsics {
+            k1: -0.5,
+            k2: 0.2,
+            ..Intrinsics::pinhole(100.0, 0.0, 0.0)
+        };
+        assert!(dip.in_valid_region(100.0));
+        // k1 = −0.5, k2 = 0.1: g = 1 − 1.5s + 0.5s² is negative between its roots 1 and 2 and
+        // positive again beyond: s = 4 is invalid although g(4) > 0.
+        let fold = Intrinsics {
+            k1: -0.5,
+            k2: 0.1,
+            ..Intrinsics::pinhole(100.0, 0.0, 0.0)
+        };
+        assert!(
+            fold.in_valid_region(0.9) && !fold.in_valid_region(1.2) && !fold.in_valid_region(4.0)
         );
     }
 

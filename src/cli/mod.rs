@@ -3,6 +3,7 @@
 
 mod profile;
 mod progress;
+mod simulate;
 mod undistort;
 
 use std::process::ExitCode;
@@ -30,6 +31,9 @@ enum Command {
     /// Show, list or convert device profiles.
     #[command(subcommand)]
     Profile(profile::Command),
+    /// Simulate the calibration lab or a pipe site with exact ground truth.
+    #[command(subcommand)]
+    Simulate(simulate::Command),
 }
 
 /// Global options every subcommand sees.
@@ -61,6 +65,7 @@ fn run(command: Command, globals: Globals) -> Result<()> {
     match command {
         Command::Undistort(args) => undistort::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
+        Command::Simulate(cmd) => simulate::run(&cmd, globals),
     }
 }
 

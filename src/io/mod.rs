@@ -7,6 +7,8 @@ pub mod atomic;
 pub mod colmap;
 pub mod error;
 pub mod frames;
+pub mod observations;
 pub mod ply;
+pub mod tls;
 
 pub use error::{Location, ReadError, ReadErrorKind, WriteError};

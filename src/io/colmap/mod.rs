@@ -5,7 +5,10 @@
 //! text → binary (by COLMAP's `model_converter`) → our reader gives identical numbers.
 
 mod binary;
+mod run;
 mod text;
+
+pub use run::{ColmapRunError, colmap_available, run_colmap_sfm};
 
 use std::collections::BTreeMap;
 use std::path::Path;

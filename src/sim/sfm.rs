@@ -1,0 +1,291 @@
+//! The SfM stand-in: a COLMAP sparse model as structure from motion would deliver it, made
+//! from the truth so that later stages can run without COLMAP.
+//!
+//! * the whole world under an arbitrary similarity (scale, rotation, translation; recorded in
+//!   the truth);
+//! * every pose perturbed at the level COLMAP reaches on such sequences: rotation errors of σ =
+//!   0.1° per axis and camera-centre errors of σ = 3 mm per axis (true units) by default;
+//! * one SIMPLE_RADIAL camera initialised from an EXIF-like focal guess (the true principal
+//!   distance off by up to ±3 %, principal point at the image centre, no distortion);
+//! * feature tracks of points on textured surfaces, observed through the true camera with
+//!   σ = 0.5 px noise, and 3 % of the observations replaced by gross mismatches (random pixels).
+
+use nalgebra::{Point3, Translation3, UnitQuaternion, Vector2, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::scene::Scene;
+use super::truth::{SfmTruth, Similarity, StandInTruth};
+use crate::camera::BrownCamera;
+use crate::geometry::Rigid3;
+use crate::geometry::pose::{camera_centre, colmap_from_rigid};
+use crate::io::colmap::{
+    CameraId, ColmapCamera, ColmapModel, Image, ImageId, Point2D, Point3D, Point3dId,
+    Reconstruction, TrackElement,
+};
+
+/// Options of the SfM stand-in.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SfmConfig {
+    /// σ of the pose rotation error per axis (degrees), default 0.1.
+    pub rotation_noise_deg: f64,
+    /// σ of the camera-centre error per axis (m, true units), default 0.003.
+    pub translation_noise_m: f64,
+    /// Largest relative error of the EXIF-like focal guess, default 0.03.
+    pub focal_guess_error: f64,
+    /// σ of feature positions (px), default 0.5.
+    pub feature_noise_px: f64,
+    /// Fraction of observations that are gross mismatches, default 0.03.
+    pub mismatch_fraction: f64,
+    /// Number of 3D points, default 4000.
+    pub points: usize,
+    /// Apply a random similarity to the world (default true); false keeps the true frame.
+    pub random_similarity: bool,
+}
+
+impl Default for SfmConfig {
+    fn default() -> Self {
+        SfmConfig {
+            rotation_noise_deg: 0.1,
+            translation_noise_m: 0.003,
+            focal_guess_error: 0.03,
+            feature_noise_px: 0.5,
+            mismatch_fraction: 0.03,
+            points: 4000,
+            random_similarity: true,
+        }
+    }
+}
+
+/// A standard normal deviate (Box–Muller).
+pub(crate) fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
+    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
+    let u2: f64 = rng.random();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// A random similarity: scale in [e^−1.5, e^1.5], uniform rotation, translation within ±5.
+fn random_similarity(rng: &mut ChaCha8Rng) -> Similarity {
+    let q = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        gaussian(rng),
+        gaussian(rng),
+        gaussian(rng),
+        gaussian(rng),
+    ));
+    let (qvec, _) = colmap_from_rigid(&Rigid3::from_parts(Translation3::identity(), q));
+    Similarity {
+        scale: rng.random_range(-1.5f64..1.5).exp(),
+        qvec,
+        tvec: [
+            rng.random_range(-5.0..5.0),
+            rng.random_range(-5.0..5.0),
+            rng.random_range(-5.0..5.0),
+        ],
+    }
+}
+
+/// A pose perturbed by a rotation of σ `rot_rad` per axis (about the camera centre) and a
+/// camera-centre shift of σ `trans_m` per axis.
+fn perturb(pose: &Rigid3, rot_rad: f64, trans_m: f64, rng: &mut ChaCha8Rng) -> Rigid3 {
+    let omega = Vector3::new(gaussian(rng), gaussian(rng), gaussian(rng)) * rot_rad;
+    let rotation = UnitQuaternion::from_scaled_axis(omega) * pose.rotation;
+    let centre =
+        camera_centre(pose) + Vector3::new(gaussian(rng), gaussian(rng), gaussian(rng)) * trans_m;
+    Rigid3::from_parts(Translation3::from(-(rotation * centre.coords)), rotation)
+}
+
+/// Whether a surface point is seen in a frame: in front, inside the image, facing the camera,
+/// not hidden. Returns its exact pixel.
+pub(crate) fn observe(
+    scene: &Scene,
+    camera: &BrownCamera,
+    cam_from_world: &Rigid3,
+    p: &Point3<f64>,
+    normal: &Vector3<f64>,
+) -> Option<Vector2<f64>> {
+    let eye = camera_centre(cam_from_world);
+    if normal.dot(&(eye - p)) <= 0.0 {
+        return None;
+    }
+    let uv = camera.project_world(cam_from_world, &p.coords)?;
+    if !camera.contains(&uv, 1.0) || !scene.visible(&eye, p, 1e-4) {
+        return None;
+    }
+    Some(uv)
+}
+
+/// Builds the stand-in sparse model for frames `names` at true poses `poses`.
+#[must_use]
+pub fn stand_in(
+    scene: &Scene,
+    camera: &BrownCamera,
+    poses: &[Rigid3],
+    names: &[String],
+    config: &SfmConfig,
+    seed: u64,
+) -> (Reconstruction, SfmTruth) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5F3);
+    let similarity = if config.random_similarity {
+        random_similarity(&mut rng)
+    } else {
+        Similarity::identity()
+    };
+    let i = camera.intrinsics;
+    let focal_guess =
+        i.c * (1.0 + rng.random_range(-config.focal_guess_error..=config.focal_guess_error));
+    let (w, h) = (f64::from(camera.width), f64::from(camera.height));
+    let mut model = Reconstruction::default();
+    model.cameras.insert(
+        CameraId(1),
+        ColmapCamera {
+            model: ColmapModel::SimpleRadial,
+            width: u64::from(camera.width),
+            height: u64::from(camera.height),
+            params: vec![focal_guess, w / 2.0, h / 2.0, 0.0],
+        },
+    );
+    for (k, (pose, name)) in poses.iter().zip(names).enumerate() {
+        let noisy = perturb(
+            pose,
+            config.rotation_noise_deg.to_radians(),
+            config.translation_noise_m,
+            &mut rng,
+        );
+        let mut image = Image {
+            qvec: [1.0, 0.0, 0.0, 0.0],
+            tvec: [0.0; 3],
+            camera_id: CameraId(1),
+            name: name.clone(),
+            points2d: Vec::new(),
+        };
+        image.set_cam_from_world(&similarity.pose_in_sfm(&noisy));
+        model.images.insert(ImageId(k as u32 + 1), image);
+    }
+    // Points on textured surfaces: cast rays through random pixels of random frames, keep
+    // hits outside target plates.
+    let mut mismatches = 0;
+    let mut attempts = 0;
+    while model.points3d.len() < config.points && attempts < config.points * 20 {
+        attempts += 1;
+        let f = rng.random_range(0..poses.len());
+        let uv = Vector2::new(rng.random_range(0.0..w), rng.random_range(0.0..h));
+        let Ok(xy) = i.ideal_from_pixel(&uv) else {
+            continue;
+        };
+        let eye = camera_centre(&poses[f]);
+        let dir = poses[f].rotation.inverse() * Vector3::new(xy.x, xy.y, 1.0);
+        let Some(hit) = scene.intersect(&eye, &dir) else {
+            continue;
+        };
+        if hit.region & 0xf != 0 {
+            continue; // on a target plate: no texture to match
+        }
+        let p = eye + dir * hit.t;
+        let mut track = Vec::new();
+        let mut observations = Vec::new();
+        for (k, pose) in poses.iter().enumerate() {
+            if let Some(uv) = observe(scene, camera, pose, &p, &hit.normal) {
+                observations.push((k, uv));
+            }
+        }
+        if observations.len() < 2 {
+            continue;
+        }
+        let id = Point3dId(model.points3d.len() as u64 + 1);
+        for (k, uv) in observations {
+            let observed = if rng.random_bool(config.mismatch_fraction.clamp(0.0, 1.0)) {
+                mismatches += 1;
+                Vector2::new(rng.random_range(0.0..w), rng.random_range(0.0..h))
+            } else {
+                uv + Vector2::new(gaussian(&mut rng), gaussian(&mut rng)) * config.feature_noise_px
+            };
+            let image = model
+                .images
+                .get_mut(&ImageId(k as u32 + 1))
+                .unwrap_or_else(|| unreachable!("every frame has an image"));
+            track.push(TrackElement {
+                image_id: ImageId(k as u32 + 1),
+                point2d_idx: image.points2d.len() as u32,
+            });
+            image.points2d.push(Point2D {
+                uv: observed,
+                point3d_id: Some(id),
+            });
+        }
+        let noisy = p + Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng))
+            * config.translation_noise_m;
+        let x = similarity.apply(&noisy);
+        let grey = (hit.albedo * 255.0).round().clamp(0.0, 255.0) as u8;
+        model.points3d.insert(
+            id,
+            Point3D {
+                xyz: [x.x, x.y, x.z],
+                rgb: [grey; 3],
+                error: config.feature_noise_px,
+                track,
+            },
+        );
+    }
+    let truth = SfmTruth {
+        source: "stand-in".into(),
+        points: model.points3d.len(),
+        stand_in: Some(StandInTruth {
+            similarity,
+            rotation_noise_deg: config.rotation_noise_deg,
+            translation_noise_m: config.translation_noise_m,
+            focal_guess_px: focal_guess,
+            feature_noise_px: config.feature_noise_px,
+            mismatch_fraction: config.mismatch_fraction,
+            mismatches,
+        }),
+    };
+    (model, truth)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::devices::{P30, preset_camera};
+    use crate::sim::lab::{LabConfig, build_scene, path};
+
+    #[test]
+    fn stand_in_tracks_reproject_through_the_true_camera_in_the_sfm_frame() {
+        let cfg = LabConfig {
+            frames: 6,
+            ..Default::default()
+        };
+        let scene = build_scene(&cfg, 0.01, 3);
+        let camera = preset_camera(&P30, 640, 360);
+        let poses: Vec<_> = path(&cfg, 3).iter().map(|s| s.cam_from_world).collect();
+        let names: Vec<_> = (1..=6).map(|k| format!("frame_{k:04}.png")).collect();
+        let sfm = SfmConfig {
+            points: 300,
+            rotation_noise_deg: 0.0,
+            translation_noise_m: 0.0,
+            feature_noise_px: 0.0,
+            ..Default::default()
+        };
+        let (model, truth) = stand_in(&scene, &camera, &poses, &names, &sfm, 3);
+        assert_eq!(model.images.len(), 6);
+        assert_eq!(model.points3d.len(), 300);
+        // Without noise, every non-mismatched observation is the true camera's projection of
+        // the SfM point in the SfM frame (the camera frame scales with the world).
+        let mut good = 0;
+        let mut bad = 0;
+        for p in model.points3d.values() {
+            for el in &p.track {
+                let image = &model.images[&el.image_id];
+                let p_cam = image.cam_from_world() * Point3::from(p.xyz);
+                let uv = camera.intrinsics.project(&p_cam.coords).unwrap();
+                let e = (uv - image.points2d[el.point2d_idx as usize].uv).norm();
+                if e < 1e-6 { good += 1 } else { bad += 1 }
+            }
+        }
+        let stand_in = truth.stand_in.unwrap();
+        assert_eq!(bad, stand_in.mismatches);
+        assert!(good > 600 && bad > 0, "{good} good, {bad} mismatched");
+        assert_ne!(stand_in.similarity.scale, 1.0);
+    }
+}

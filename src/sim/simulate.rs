@@ -1,0 +1,477 @@
+//! Running a simulation end to end: build the scene, render the frames in parallel, compute the
+//! truth, make the sparse model, and write everything into one folder.
+//!
+//! ```text
+//! OUT/frames/frame_0001.png …   rendered frames (PNG, or JPEG with a quality)
+//! OUT/truth.json                 schema pipemeasure.truth/1 (see sim::truth)
+//! OUT/sparse/{cameras,images,points3D}.txt   the SfM stand-in (or COLMAP's model)
+//! site only:
+//! OUT/tls_targets.csv            id,x,y,z of the wall targets (TLS frame, with TLS noise)
+//! OUT/tls_scan.ply               the TLS cloud of pipes, wall and floor
+//! OUT/dense/observations.bin     dense surface points with noisy pixel observations
+//! OUT/dense/fused.ply            the dense cloud triangulated from them (SfM frame)
+//! ```
+//!
+//! Every output is a pure function of the options and the seed: the same seed gives
+//! byte-identical files whatever the number of threads.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::devices::{PRESETS, preset};
+use super::lab::{LabConfig, LabConfigError, Station};
+use super::render::{RayGrid, RenderConfig, RenderConfigError, exposure_gain, render_frame};
+use super::scene::Scene;
+use super::sfm::{SfmConfig, stand_in};
+use super::truth::{TRUTH_SCHEMA, Truth, TruthCamera, frame_truth};
+use crate::camera::BrownCamera;
+use crate::io::WriteError;
+use crate::io::atomic::write_bytes_atomic;
+use crate::io::colmap::ModelFormat;
+
+/// Where the sparse model comes from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SfmSource {
+    /// The simulated stand-in (default; needs nothing outside the crate).
+    #[default]
+    StandIn,
+    /// The real COLMAP (feature_extractor on CPU, sequential_matcher, mapper) on the frames.
+    Colmap,
+}
+
+/// Options shared by both scenes.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimulateOptions {
+    /// Device preset to imitate (`p30`, `iphone11`, `s10`).
+    pub device: String,
+    /// Frame width (px); the preset's intrinsics scale with it. Default 3840.
+    pub width: u32,
+    /// Frame height (px); must keep the preset's 16:9 aspect. Default 2160.
+    pub height: u32,
+    /// Seed of every random choice. Default 1.
+    pub seed: u64,
+    /// Rendering options.
+    pub render: RenderConfig,
+    /// SfM stand-in options.
+    pub sfm: SfmConfig,
+    /// Source of the sparse model.
+    pub sfm_source: SfmSource,
+    /// Truth visibility margin (px): targets closer than this to the border are not listed.
+    /// Default 4.
+    pub margin_px: f64,
+    /// The command line, recorded in the truth.
+    pub command: String,
+}
+
+impl Default for SimulateOptions {
+    fn default() -> Self {
+        SimulateOptions {
+            device: "p30".into(),
+            width: 3840,
+            height: 2160,
+            seed: 1,
+            render: RenderConfig::default(),
+            sfm: SfmConfig::default(),
+            sfm_source: SfmSource::StandIn,
+            margin_px: 4.0,
+            command: String::new(),
+        }
+    }
+}
+
+/// Why a simulation failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SimError {
+    /// Unknown device preset.
+    #[error("unknown device preset `{name}`; presets: {}", PRESETS.map(|p| p.name).join(", "))]
+    UnknownDevice {
+        /// The name asked for.
+        name: String,
+    },
+    /// A bad option.
+    #[error("option `{field}`: {reason}")]
+    Option {
+        /// The option.
+        field: &'static str,
+        /// What is wrong.
+        reason: String,
+    },
+    /// Bad render options.
+    #[error(transparent)]
+    Render(#[from] RenderConfigError),
+    /// Bad lab options.
+    #[error(transparent)]
+    Lab(#[from] LabConfigError),
+    /// Bad site options.
+    #[error(transparent)]
+    Site(#[from] super::site::SiteConfigError),
+    /// A file could not be written.
+    #[error(transparent)]
+    Write(#[from] WriteError),
+    /// A frame could not be encoded.
+    #[error("encoding frame {name}: {source}")]
+    Encode {
+        /// The frame.
+        name: String,
+        /// The cause.
+        #[source]
+        source: image::ImageError,
+    },
+    /// COLMAP failed or is missing.
+    #[error(transparent)]
+    Colmap(#[from] crate::io::colmap::ColmapRunError),
+}
+
+impl SimulateOptions {
+    /// The true camera: the preset scaled to the frame size.
+    ///
+    /// # Errors
+    ///
+    /// [`SimError::UnknownDevice`], or [`SimError::Option`] when the size is out of range or
+    /// does not keep the preset's aspect ratio.
+    pub fn camera(&self) -> Result<BrownCamera, SimError> {
+        let p = preset(&self.device).ok_or_else(|| SimError::UnknownDevice {
+            name: self.device.clone(),
+        })?;
+        if !(64..=8192).contains(&self.width) {
+            return Err(SimError::Option {
+                field: "width",
+                reason: "must be between 64 and 8192 px".into(),
+            });
+        }
+        let expected = (f64::from(self.width) * f64::from(p.camera.height)
+            / f64::from(p.camera.width))
+        .round() as u32;
+        if self.height.abs_diff(expected) > 1 {
+            return Err(SimError::Option {
+                field: "height",
+                reason: format!(
+                    "must keep the preset's aspect ratio: {expected} for width {}",
+                    self.width
+                ),
+            });
+        }
+        Ok(p.camera.scaled(self.width, self.height))
+    }
+
+    /// Checks every option.
+    ///
+    /// # Errors
+    ///
+    /// The first problem found.
+    pub fn validate(&self) -> Result<(), SimError> {
+        self.camera()?;
+        self.render.validate()?;
+        let s = &self.sfm;
+        for (field, v) in [
+            ("sfm.rotation_noise_deg", s.rotation_noise_deg),
+            ("sfm.translation_noise_m", s.translation_noise_m),
+            ("sfm.feature_noise_px", s.feature_noise_px),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(SimError::Option {
+                    field,
+                    reason: "must be a finite value ≥ 0".into(),
+                });
+            }
+        }
+        if !(0.0..0.5).contains(&s.focal_guess_error) {
+            return Err(SimError::Option {
+                field: "sfm.focal_guess_error",
+                reason: "must be in [0, 0.5)".into(),
+            });
+        }
+        if !(0.0..=0.5).contains(&s.mismatch_fraction) {
+            return Err(SimError::Option {
+                field: "sfm.mismatch_fraction",
+                reason: "must be in [0, 0.5]".into(),
+            });
+        }
+        if !(self.margin_px.is_finite() && self.margin_px >= 0.0) {
+            return Err(SimError::Option {
+                field: "margin_px",
+                reason: "must be ≥ 0".into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// The frame file name of frame `k` (0-based).
+    #[must_use]
+    pub fn frame_name(&self, k: usize) -> String {
+        let ext = if self.render.jpeg_quality.is_some() {
+            "jpg"
+        } else {
+            "png"
+        };
+        format!("frame_{:04}.{ext}", k + 1)
+    }
+}
+
+/// Texture resolution for a camera: about 0.6 px at 2 m, between 0.8 mm and 10 mm.
+#[must_use]
+pub fn texel_size(camera: &BrownCamera) -> f64 {
+    (2.0 / camera.intrinsics.c * 0.6).clamp(0.0008, 0.01)
+}
+
+/// Renders `stations` into `out/frames` and returns the truth frames, in order.
+///
+/// # Errors
+///
+/// A frame that cannot be encoded or written.
+pub fn render_frames(
+    scene: &Scene,
+    camera: &BrownCamera,
+    stations: &[Station],
+    gain: f64,
+    options: &SimulateOptions,
+    out: &Path,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Vec<super::truth::TruthFrame>, SimError> {
+    let frames_dir = out.join("frames");
+    std::fs::create_dir_all(&frames_dir).map_err(|e| WriteError::new(&frames_dir, e))?;
+    let rays = RayGrid::new(camera);
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    stations
+        .par_iter()
+        .enumerate()
+        .map(|(k, station)| {
+            let name = options.frame_name(k);
+            let frame = render_frame(
+                scene,
+                camera,
+                &rays,
+                &station.cam_from_world,
+                gain,
+                &options.render,
+                options.seed,
+                k as u64,
+            )
+            .map_err(|source| SimError::Encode {
+                name: name.clone(),
+                source,
+            })?;
+            let path = frames_dir.join(&name);
+            match &frame.jpeg {
+                Some(bytes) => write_bytes_atomic(&path, bytes)?,
+                None => crate::io::frames::write_png(
+                    &path,
+                    &image::DynamicImage::ImageRgb8(frame.image),
+                )?,
+            }
+            let truth = frame_truth(
+                scene,
+                camera,
+                k as u32 + 1,
+                &name,
+                &station.cam_from_world,
+                station.orientation,
+                options.margin_px,
+            );
+            progress(done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1);
+            Ok(truth)
+        })
+        .collect()
+}
+
+/// Writes the truth file atomically.
+///
+/// # Errors
+///
+/// [`WriteError`].
+pub fn write_truth(truth: &Truth, out: &Path) -> Result<PathBuf, WriteError> {
+    let path = out.join("truth.json");
+    let text = serde_json::to_string_pretty(truth)
+        .map_err(|e| WriteError::new(&path, std::io::Error::other(e)))?;
+    write_bytes_atomic(&path, text.as_bytes())?;
+    Ok(path)
+}
+
+/// Simulates the calibration lab into `out`.
+///
+/// # Errors
+///
+/// [`SimError`] for bad options, a file that cannot be written, or a failed COLMAP run.
+pub fn simulate_lab(
+    options: &SimulateOptions,
+    lab: &LabConfig,
+    out: &Path,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Truth, SimError> {
+    options.validate()?;
+    lab.validate()?;
+    let camera = options.camera()?;
+    let scene = super::lab::build_scene(lab, texel_size(&camera), options.seed);
+    let stations = super::lab::path(lab, options.seed);
+    let gain = exposure_gain(
+        &options.render,
+        super::lab::reference_irradiance(&scene, lab),
+    );
+    std::fs::create_dir_all(out).map_err(|e| WriteError::new(out, e))?;
+    let frames = render_frames(&scene, &camera, &stations, gain, options, out, progress)?;
+    let sfm = write_sparse(&scene, &camera, &stations, options, out)?;
+    let truth = Truth {
+        schema: TRUTH_SCHEMA.into(),
+        scene: "lab".into(),
+        seed: options.seed,
+        command: options.command.clone(),
+        camera: TruthCamera {
+            device: options.device.clone(),
+            width: camera.width,
+            height: camera.height,
+            intrinsics: camera.intrinsics,
+        },
+        render: options.render.clone(),
+        margin_px: options.margin_px,
+        targets: scene.targets.clone(),
+        frames,
+        sfm: Some(sfm),
+        pipes: Vec::new(),
+        tls: None,
+        dense: None,
+    };
+    write_truth(&truth, out)?;
+    Ok(truth)
+}
+
+/// Site-specific options.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SiteOptions {
+    /// Scene content.
+    pub site: super::site::SiteConfig,
+    /// Dense observations.
+    pub dense: super::dense::DenseConfig,
+    /// TLS survey.
+    pub tls: super::dense::TlsConfig,
+}
+
+/// Simulates a pipe site into `out`.
+///
+/// # Errors
+///
+/// [`SimError`] for bad options, a file that cannot be written, or a failed COLMAP run.
+pub fn simulate_site(
+    options: &SimulateOptions,
+    site: &SiteOptions,
+    out: &Path,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Truth, SimError> {
+    use super::dense::{dense_observations, fuse, tls_scan, tls_targets};
+    options.validate()?;
+    site.site.validate()?;
+    let camera = options.camera()?;
+    let scene = super::site::build_scene(&site.site, texel_size(&camera), options.seed);
+    let stations = super::site::path(&site.site, options.seed);
+    let gain = exposure_gain(&options.render, super::site::reference_irradiance(&scene));
+    std::fs::create_dir_all(out).map_err(|e| WriteError::new(out, e))?;
+    let frames = render_frames(&scene, &camera, &stations, gain, options, out, progress)?;
+    let sfm = write_sparse(&scene, &camera, &stations, options, out)?;
+
+    // Dense observations and the fused cloud at the sparse model's poses.
+    let dense_dir = out.join("dense");
+    std::fs::create_dir_all(&dense_dir).map_err(|e| WriteError::new(&dense_dir, e))?;
+    let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
+    let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
+    let obs = dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed);
+    obs.write(&dense_dir.join("observations.bin"))?;
+    let model =
+        crate::io::colmap::Reconstruction::read_format(&out.join("sparse"), ModelFormat::Text)
+            .map_err(|e| SimError::Option {
+                field: "sparse",
+                reason: e.to_string(),
+            })?;
+    let sfm_poses: Vec<_> = names
+        .iter()
+        .map(|n| model.image_by_name(n).map(|(_, im)| im.cam_from_world()))
+        .collect::<Option<Vec<_>>>()
+        .ok_or_else(|| SimError::Option {
+            field: "sparse",
+            reason: "the sparse model lacks some frames".into(),
+        })?;
+    let fused = fuse(&obs, &camera, &sfm_poses);
+    crate::io::ply::write_binary(&dense_dir.join("fused.ply"), &fused)?;
+
+    // TLS scan and targets.
+    let scan = tls_scan(&scene, &site.tls, options.seed);
+    crate::io::ply::write_binary(&out.join("tls_scan.ply"), &scan)?;
+    let targets: Vec<_> = tls_targets(&scene, &site.tls, options.seed)
+        .into_iter()
+        .map(|(id, p)| crate::io::tls::TlsTarget {
+            id: id.to_string(),
+            position: nalgebra::Point3::from(p),
+        })
+        .collect();
+    crate::io::tls::write_targets(&out.join("tls_targets.csv"), &targets)?;
+
+    let truth = Truth {
+        schema: TRUTH_SCHEMA.into(),
+        scene: "site".into(),
+        seed: options.seed,
+        command: options.command.clone(),
+        camera: TruthCamera {
+            device: options.device.clone(),
+            width: camera.width,
+            height: camera.height,
+            intrinsics: camera.intrinsics,
+        },
+        render: options.render.clone(),
+        margin_px: options.margin_px,
+        targets: scene.targets.clone(),
+        frames,
+        sfm: Some(sfm),
+        pipes: site.site.pipe_truth(),
+        tls: Some(super::truth::TlsTruth {
+            station: site.tls.station,
+            offset: site.tls.offset,
+            range_noise_m: site.tls.range_noise_m,
+            target_noise_m: site.tls.target_noise_m,
+            points: scan.len(),
+        }),
+        dense: Some(super::truth::DenseTruth {
+            points: obs.points.len(),
+            observations: obs.points.iter().map(|p| p.observations.len()).sum(),
+            noise_px: site.dense.noise_px,
+            fused_points: fused.len(),
+            labels: obs.labels.clone(),
+        }),
+    };
+    write_truth(&truth, out)?;
+    Ok(truth)
+}
+
+/// Writes `out/sparse` from the stand-in or from COLMAP.
+fn write_sparse(
+    scene: &Scene,
+    camera: &BrownCamera,
+    stations: &[Station],
+    options: &SimulateOptions,
+    out: &Path,
+) -> Result<super::truth::SfmTruth, SimError> {
+    let sparse = out.join("sparse");
+    match options.sfm_source {
+        SfmSource::StandIn => {
+            let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
+            let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
+            let (model, truth) =
+                stand_in(scene, camera, &poses, &names, &options.sfm, options.seed);
+            model.write(&sparse, ModelFormat::Text)?;
+            Ok(truth)
+        }
+        SfmSource::Colmap => {
+            let model =
+                crate::io::colmap::run_colmap_sfm(&out.join("frames"), &out.join("colmap"))?;
+            model.write(&sparse, ModelFormat::Text)?;
+            Ok(super::truth::SfmTruth {
+                source: "colmap".into(),
+                points: model.points3d.len(),
+                stand_in: None,
+            })
+        }
+    }
+}
