@@ -195,13 +195,14 @@ pub fn dense_observations(
 }
 
 /// Triangulates every dense point through `camera` at `poses` (any frame, e.g. the SfM
-/// model's): the dense cloud. Points that do not triangulate in front of their cameras are
-/// dropped.
+/// model's; `None` for frames without a pose, whose observations are skipped): the dense
+/// cloud. Points left with fewer than two views or that do not triangulate in front of their
+/// cameras are dropped.
 #[must_use]
 pub fn fuse(
     observations: &DenseObservations,
     camera: &BrownCamera,
-    poses: &[Rigid3],
+    poses: &[Option<Rigid3>],
 ) -> PointCloud {
     let fused: Vec<(Point3<f64>, u8)> = observations
         .points
@@ -212,7 +213,10 @@ pub fn fuse(
                 .iter()
                 .filter_map(|o| {
                     let xy = camera.intrinsics.ideal_from_pixel(&o.uv).ok()?;
-                    Some(Observation::normalized(poses.get(o.frame as usize)?, xy))
+                    Some(Observation::normalized(
+                        poses.get(o.frame as usize)?.as_ref()?,
+                        xy,
+                    ))
                 })
                 .collect();
             if obs.len() < 2 {

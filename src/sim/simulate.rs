@@ -386,14 +386,11 @@ pub fn simulate_site(
                 field: "sparse",
                 reason: e.to_string(),
             })?;
+    // Frames the SfM did not register have no pose; their observations are left out.
     let sfm_poses: Vec<_> = names
         .iter()
         .map(|n| model.image_by_name(n).map(|(_, im)| im.cam_from_world()))
-        .collect::<Option<Vec<_>>>()
-        .ok_or_else(|| SimError::Option {
-            field: "sparse",
-            reason: "the sparse model lacks some frames".into(),
-        })?;
+        .collect();
     let fused = fuse(&obs, &camera, &sfm_poses);
     crate::io::ply::write_binary(&dense_dir.join("fused.ply"), &fused)?;
 
