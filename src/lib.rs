@@ -37,6 +37,8 @@
 //! ```
 
 pub mod camera;
+pub mod detect;
+pub mod experiments;
 pub mod geometry;
 pub mod io;
 pub mod profile;

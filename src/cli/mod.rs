@@ -1,6 +1,23 @@
 //! Command-line interface (binary only): clap definitions, one module per subcommand, and the
 //! single place where errors become exit codes (0 success, 1 failure, 2 usage, 3 nothing found).
 
+/// `println!` that returns an error (e.g. a closed pipe) instead of panicking.
+macro_rules! outln {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        writeln!(std::io::stdout().lock(), $($arg)*)?;
+    }};
+}
+
+/// `print!` that returns an error instead of panicking.
+macro_rules! out {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        write!(std::io::stdout().lock(), $($arg)*)?;
+    }};
+}
+
+mod detect;
 mod profile;
 mod progress;
 mod simulate;
@@ -28,6 +45,8 @@ enum Command {
     /// Undistort frames with a device profile into a pinhole camera, writing PNG frames and a
     /// COLMAP cameras.txt.
     Undistort(undistort::Args),
+    /// Find circular targets and their best-fit ellipses in frames.
+    Detect(detect::Args),
     /// Show, list or convert device profiles.
     #[command(subcommand)]
     Profile(profile::Command),
@@ -54,6 +73,8 @@ pub fn main() -> ExitCode {
     };
     match run(command, globals) {
         Ok(()) => ExitCode::SUCCESS,
+        // The reader of our output went away (`| head`): not a failure.
+        Err(err) if is_broken_pipe(&err) => ExitCode::SUCCESS,
         Err(err) => {
             eprintln!("error: {err:#}");
             exit_code_for(&err)
@@ -64,9 +85,17 @@ pub fn main() -> ExitCode {
 fn run(command: Command, globals: Globals) -> Result<()> {
     match command {
         Command::Undistort(args) => undistort::run(&args, globals),
+        Command::Detect(args) => detect::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
     }
+}
+
+fn is_broken_pipe(err: &anyhow::Error) -> bool {
+    err.chain().any(|e| {
+        e.downcast_ref::<std::io::Error>()
+            .is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe)
+    })
 }
 
 /// 1 for every failure; "nothing found" outcomes get 3 once the stages that can report them

@@ -49,9 +49,9 @@ pub fn run(cmd: &Command) -> Result<()> {
         Command::Show { device, json } => {
             let (path, profile) = load_device(device)?;
             if *json {
-                println!("{}", profile.to_json());
+                outln!("{}", profile.to_json());
             } else {
-                print!("{}", show(&profile, &path.display().to_string()));
+                out!("{}", show(&profile, &path.display().to_string()));
             }
         }
         Command::List => {
@@ -65,7 +65,7 @@ pub fn run(cmd: &Command) -> Result<()> {
             }
             for d in devices {
                 let path = resolve_device(&d)?;
-                println!("{d}\t{}", path.display());
+                outln!("{d}\t{}", path.display());
             }
         }
         Command::Export {
@@ -83,7 +83,7 @@ pub fn run(cmd: &Command) -> Result<()> {
                     export_opencv(&profile)?
                 }
             };
-            print!("{text}");
+            out!("{text}");
         }
     }
     Ok(())

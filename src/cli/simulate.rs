@@ -186,7 +186,7 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             .with_context(|| format!("simulating a lab into {}", args.common.out.display()))?;
             progress.finish_and_clear();
             let visible: usize = truth.frames.iter().map(|f| f.targets.len()).sum();
-            println!(
+            outln!(
                 "simulated lab: {} frames {}x{} ({}), {} targets, {:.1} visible per frame, sparse model: {} ({} points)\nwritten to {}",
                 truth.frames.len(),
                 truth.camera.width,
@@ -217,7 +217,7 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             progress.finish_and_clear();
             let pipe = truth.pipes.iter().find(|p| p.of_interest);
             let dense = truth.dense.as_ref();
-            println!(
+            outln!(
                 "simulated site: {} frames {}x{} ({}), {} targets, pipe of interest {} (r = {:.2} mm)\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points\nwritten to {}",
                 truth.frames.len(),
                 truth.camera.width,

@@ -102,7 +102,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     };
     let cameras_txt = args.output.join("cameras.txt");
     write_cameras_text(&cameras_txt, &BTreeMap::from([(CameraId(1), pinhole)]))?;
-    println!(
+    outln!(
         "undistorted {} frames with {} into {}\nPINHOLE camera: fx {:.4} fy {:.4} cx {:.4} cy {:.4} ({})",
         frames.len(),
         profile.device,
