@@ -36,10 +36,12 @@
 //! assert!((xy.x - 0.15).abs() < 1e-12 && (xy.y + 0.1).abs() < 1e-12);
 //! ```
 
+pub mod calibrate;
 pub mod camera;
 pub mod detect;
 pub mod experiments;
 pub mod geometry;
 pub mod io;
 pub mod profile;
+pub mod robust;
 pub mod sim;

@@ -256,6 +256,23 @@ impl Intrinsics {
         *self = Intrinsics::from_array(a);
     }
 
+    /// The calibration matrix of the undistorted pinhole image of this camera: pixels
+    /// `u = (c + b1)·x + b2·y + u0`, `v = c·y + v0` of ideal normalised coordinates.
+    #[must_use]
+    pub fn pinhole_matrix(&self) -> nalgebra::Matrix3<f64> {
+        nalgebra::Matrix3::new(
+            self.c + self.b1,
+            self.b2,
+            self.u0,
+            0.0,
+            self.c,
+            self.v0,
+            0.0,
+            0.0,
+            1.0,
+        )
+    }
+
     /// Whether any distortion term (k, p) is non-zero.
     #[must_use]
     pub fn has_distortion(&self) -> bool {

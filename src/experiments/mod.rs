@@ -2,3 +2,4 @@
 //! may use every other module, including the simulator and the algorithms it judges).
 
 pub mod detection;
+pub mod matching;

@@ -4,7 +4,10 @@
 //! Poses follow COLMAP's `cam_from_world` naming: see the crate's `# Conventions`.
 
 pub mod conic;
+pub mod eccentricity;
+pub mod epipolar;
 pub mod pose;
+pub mod quan;
 pub mod triangulation;
 
 pub use conic::Ellipse;

@@ -162,6 +162,32 @@ pub fn reprojection_rms(obs: &[Observation], x: &Point3<f64>) -> f64 {
     (sum / obs.len().max(1) as f64).sqrt()
 }
 
+/// The covariance of a triangulated point for isotropic image noise of σ = 1 (the cofactor
+/// matrix), in the Jacobian form of Beder & Steffen (2006), math §5.1:
+/// `Σ = (Σ_k J_kᵀ J_k)⁻¹` with `J_k = ∂π(P_k X)/∂X` at `x`.
+#[must_use]
+pub fn covariance(obs: &[Observation], x: &Point3<f64>) -> Option<Matrix3<f64>> {
+    let mut n = Matrix3::zeros();
+    for o in obs {
+        let (_, j) = project_with_jacobian(&o.p, x)?;
+        n += j.transpose() * j;
+    }
+    n.try_inverse()
+}
+
+/// Roundness `sqrt(λ_min / λ_max)` of a covariance (math §5.3): 1 for a sphere, → 0 for a
+/// needle; two rays at equal distances meeting at angle α give `min(sin, cos)(α/2)`.
+#[must_use]
+pub fn roundness(cov: &Matrix3<f64>) -> f64 {
+    let e = cov.symmetric_eigen().eigenvalues;
+    let (lo, hi) = (e.min(), e.max());
+    if hi > 0.0 && lo >= 0.0 {
+        (lo / hi).sqrt()
+    } else {
+        0.0
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -224,6 +250,27 @@ mod tests {
         let dlt = triangulate_dlt(&obs).unwrap();
         let refined = triangulate(&obs).unwrap();
         assert!(reprojection_rms(&obs, &refined) <= reprojection_rms(&obs, &dlt));
+    }
+
+    #[test]
+    fn roundness_of_two_symmetric_rays_is_min_sin_cos_of_half_the_angle() {
+        // Two cameras at distance 2 from the point, rays meeting at angle α.
+        for deg in [10.0f64, 40.0, 90.0, 120.0] {
+            let a = deg.to_radians();
+            let x = Point3::new(0.0, 0.0, 0.0);
+            let obs: Vec<Observation> = [-1.0, 1.0]
+                .iter()
+                .map(|s| {
+                    let eye = Vector3::new(s * 2.0 * (a / 2.0).sin(), 0.0, -2.0 * (a / 2.0).cos());
+                    let rot = UnitQuaternion::face_towards(&(-eye), &Vector3::y());
+                    let pose = Isometry3::from_parts(Translation3::from(eye), rot).inverse();
+                    Observation::normalized(&pose, Vector2::zeros())
+                })
+                .collect();
+            let r = roundness(&covariance(&obs, &x).unwrap());
+            let expected = (a / 2.0).sin().min((a / 2.0).cos());
+            assert!((r - expected).abs() < 1e-9, "α {deg}°: {r} vs {expected}");
+        }
     }
 
     #[test]

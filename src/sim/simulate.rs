@@ -292,6 +292,36 @@ pub fn write_truth(truth: &Truth, out: &Path) -> Result<PathBuf, WriteError> {
     Ok(path)
 }
 
+/// The lab's truth record around its frames and sparse-model truth.
+fn lab_truth(
+    options: &SimulateOptions,
+    camera: &BrownCamera,
+    scene: &Scene,
+    frames: Vec<super::truth::TruthFrame>,
+    sfm: super::truth::SfmTruth,
+) -> Truth {
+    Truth {
+        schema: TRUTH_SCHEMA.into(),
+        scene: "lab".into(),
+        seed: options.seed,
+        command: options.command.clone(),
+        camera: TruthCamera {
+            device: options.device.clone(),
+            width: camera.width,
+            height: camera.height,
+            intrinsics: camera.intrinsics,
+        },
+        render: options.render.clone(),
+        margin_px: options.margin_px,
+        targets: scene.targets.clone(),
+        frames,
+        sfm: Some(sfm),
+        pipes: Vec::new(),
+        tls: None,
+        dense: None,
+    }
+}
+
 /// Simulates the calibration lab into `out`.
 ///
 /// # Errors
@@ -315,28 +345,47 @@ pub fn simulate_lab(
     std::fs::create_dir_all(out).map_err(|e| WriteError::new(out, e))?;
     let frames = render_frames(&scene, &camera, &stations, gain, options, out, progress)?;
     let sfm = write_sparse(&scene, &camera, &stations, options, out)?;
-    let truth = Truth {
-        schema: TRUTH_SCHEMA.into(),
-        scene: "lab".into(),
-        seed: options.seed,
-        command: options.command.clone(),
-        camera: TruthCamera {
-            device: options.device.clone(),
-            width: camera.width,
-            height: camera.height,
-            intrinsics: camera.intrinsics,
-        },
-        render: options.render.clone(),
-        margin_px: options.margin_px,
-        targets: scene.targets.clone(),
-        frames,
-        sfm: Some(sfm),
-        pipes: Vec::new(),
-        tls: None,
-        dense: None,
-    };
+    let truth = lab_truth(options, &camera, &scene, frames, sfm);
     write_truth(&truth, out)?;
     Ok(truth)
+}
+
+/// The lab's geometry without images: the same truth as [`simulate_lab`] (same scene, path,
+/// per-frame target views) and the SfM stand-in's sparse model, in memory. For tests and
+/// experiments that start from detections rather than pixels (the truth's `fitted` ellipses
+/// are what a perfect detector finds).
+///
+/// # Errors
+///
+/// [`SimError`] for bad options.
+pub fn lab_geometry(
+    options: &SimulateOptions,
+    lab: &LabConfig,
+) -> Result<(Truth, crate::io::colmap::Reconstruction), SimError> {
+    options.validate()?;
+    lab.validate()?;
+    let camera = options.camera()?;
+    let scene = super::lab::build_scene(lab, texel_size(&camera), options.seed);
+    let stations = super::lab::path(lab, options.seed);
+    let frames: Vec<_> = stations
+        .par_iter()
+        .enumerate()
+        .map(|(k, station)| {
+            frame_truth(
+                &scene,
+                &camera,
+                k as u32 + 1,
+                &options.frame_name(k),
+                &station.cam_from_world,
+                station.orientation,
+                options.margin_px,
+            )
+        })
+        .collect();
+    let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
+    let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
+    let (model, sfm) = stand_in(&scene, &camera, &poses, &names, &options.sfm, options.seed);
+    Ok((lab_truth(options, &camera, &scene, frames, sfm), model))
 }
 
 /// Site-specific options.

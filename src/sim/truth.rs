@@ -292,10 +292,11 @@ fn plane_axes(normal: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
     (u, normal.cross(&u))
 }
 
-/// The calibration matrix of the undistorted pinhole image.
+/// The calibration matrix of the undistorted pinhole image
+/// ([`Intrinsics::pinhole_matrix`]).
 #[must_use]
 pub fn pinhole_matrix(i: &Intrinsics) -> Matrix3<f64> {
-    Matrix3::new(i.c + i.b1, i.b2, i.u0, 0.0, i.c, i.v0, 0.0, 0.0, 1.0)
+    i.pinhole_matrix()
 }
 
 /// The view of `target` from a camera, or `None` if it is not visible by the rule of the module

@@ -1,0 +1,9 @@
+//! The calibration job (layer 3): paper Algorithm 1 (`refine`: robust two-view geometry and
+//! robust triangulation of the SfM features), Algorithm 2 (`matching`: ellipse matching across
+//! views), Algorithm 3 (`eccentricity`: the image of each target's true centre), on the
+//! frames' cameras and detections in undistorted pixel coordinates (`views`).
+
+pub mod eccentricity;
+pub mod matching;
+pub mod refine;
+pub mod views;
