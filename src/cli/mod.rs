@@ -18,6 +18,7 @@ macro_rules! out {
 }
 
 mod detect;
+mod matching;
 mod profile;
 mod progress;
 mod simulate;
@@ -47,6 +48,8 @@ enum Command {
     Undistort(undistort::Args),
     /// Find circular targets and their best-fit ellipses in frames.
     Detect(detect::Args),
+    /// Match circular targets across the frames of an SfM model (paper Algorithms 1–3).
+    Match(matching::Args),
     /// Show, list or convert device profiles.
     #[command(subcommand)]
     Profile(profile::Command),
@@ -86,6 +89,7 @@ fn run(command: Command, globals: Globals) -> Result<()> {
     match command {
         Command::Undistort(args) => undistort::run(&args, globals),
         Command::Detect(args) => detect::run(&args, globals),
+        Command::Match(args) => matching::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
     }

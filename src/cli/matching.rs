@@ -1,0 +1,252 @@
+//! `pipemeasure match --frames DIR --sfm MODEL [--json OUT] [--device NAME]
+//! [--no-robust-triangulation] [--no-eccentricity]`: Algorithm 1 steps 1–3 on the SfM model,
+//! target detection in its frames, Algorithm 2 and Algorithm 3; the tracks as JSON.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use pipemeasure::calibrate::matching::{MatchConfig, Matching, match_targets};
+use pipemeasure::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
+use pipemeasure::calibrate::views::{TargetObservation, observations};
+use pipemeasure::camera::Intrinsics;
+use pipemeasure::detect::{DetectConfig, Detector};
+use pipemeasure::io::atomic::write_bytes_atomic;
+use pipemeasure::io::colmap::Reconstruction;
+use pipemeasure::io::frames::read_frame;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::Globals;
+use super::progress::bar;
+
+/// Arguments of `match`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Folder of the frames the SfM model was built from (image names are relative to it).
+    #[arg(long)]
+    frames: PathBuf,
+    /// COLMAP sparse model folder (text or binary), e.g. `sparse/0`.
+    #[arg(long)]
+    sfm: PathBuf,
+    /// Write the tracks here as JSON (atomically); without it, print a summary.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Use this device profile's intrinsics instead of the model's camera.
+    #[arg(long)]
+    device: Option<String>,
+    /// Keep every chained view (no LMedS triangulation of the tracks: paper Table II row 1).
+    #[arg(long)]
+    no_robust_triangulation: bool,
+    /// Do not correct the ellipse centres with Algorithm 3.
+    #[arg(long)]
+    no_eccentricity: bool,
+    /// Smallest semi-minor axis of a target to use (px).
+    #[arg(long, default_value_t = 4.0)]
+    min_semi_minor: f64,
+}
+
+#[derive(Serialize)]
+struct EllipseOut {
+    cx: f64,
+    cy: f64,
+    a: f64,
+    b: f64,
+    theta: f64,
+}
+
+#[derive(Serialize)]
+struct ObservationOut {
+    frame: String,
+    /// Index of the detection in its frame (as `pipemeasure detect` lists them).
+    detection: usize,
+    /// The detected ellipse (observed pixels).
+    ellipse: EllipseOut,
+    /// Algorithm 3's image of the target's centre (observed pixels), if corrected.
+    corrected: Option<[f64; 2]>,
+    /// Algorithm 3's partner frame.
+    partner: Option<String>,
+}
+
+#[derive(Serialize)]
+struct TargetOut {
+    id: usize,
+    /// Triangulated centre in the SfM model's frame.
+    point: [f64; 3],
+    /// RMS reprojection error of the centres (px).
+    rms_px: f64,
+    observations: Vec<ObservationOut>,
+}
+
+#[derive(Serialize)]
+struct Algorithm1Out {
+    pairs: usize,
+    tracks: usize,
+    rejected_tracks: usize,
+    track_inlier_fraction: f64,
+    reprojection_sigma_px: f64,
+}
+
+#[derive(Serialize)]
+struct MatchOut {
+    schema: &'static str,
+    model: String,
+    frames: Vec<String>,
+    detections: usize,
+    algorithm1: Algorithm1Out,
+    candidates: usize,
+    pair_matches: usize,
+    conflicts: usize,
+    targets: Vec<TargetOut>,
+}
+
+/// The intrinsics to use: the profile's (scaled to the model's image size) or none (the
+/// model's camera).
+fn intrinsics_for(device: Option<&str>, model: &Reconstruction) -> Result<Option<(Intrinsics, String)>> {
+    let Some(spec) = device else { return Ok(None) };
+    let (path, profile) = pipemeasure::profile::load_device(spec)?;
+    let Some(cam) = model.cameras.values().next() else { bail!("the model has no camera") };
+    let (w, h) = (u32::try_from(cam.width).unwrap_or(0), u32::try_from(cam.height).unwrap_or(0));
+    let camera = profile.camera();
+    let camera = if (camera.width, camera.height) == (w, h) {
+        camera
+    } else {
+        if u64::from(camera.width) * u64::from(h) != u64::from(camera.height) * u64::from(w) {
+            bail!(
+                "profile {} is for {}x{} frames, the model's are {w}x{h} (another aspect ratio)",
+                path.display(),
+                camera.width,
+                camera.height
+            );
+        }
+        camera.scaled(w, h)
+    };
+    Ok(Some((camera.intrinsics, path.display().to_string())))
+}
+
+/// Detects the targets of every model frame, in parallel (one frame in memory per worker).
+fn detect_frames(a1: &Algorithm1, dir: &Path, min_semi_minor: f64, quiet: bool) -> Result<Vec<Vec<TargetObservation>>> {
+    let config = DetectConfig { min_semi_minor_px: min_semi_minor, ..DetectConfig::default() };
+    Detector::new(config.clone())?;
+    let progress = bar(a1.frames.len() as u64, "detecting", quiet);
+    let result: Vec<Result<Vec<TargetObservation>>> = a1
+        .frames
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || Detector::new(config.clone()),
+            |detector, (k, frame)| {
+                let detector = detector.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
+                let path = dir.join(&frame.name);
+                let image = read_frame(&path).with_context(|| format!("frame {} of the model", frame.name))?;
+                let ellipses: Vec<_> = detector.detect(&image).ellipses.iter().map(|e| e.ellipse()).collect();
+                progress.inc(1);
+                Ok(observations(k, &frame.camera, &ellipses))
+            },
+        )
+        .collect();
+    progress.finish_and_clear();
+    result.into_iter().collect()
+}
+
+fn output(model: &Path, a1: &Algorithm1, obs: &[Vec<TargetObservation>], m: &Matching) -> MatchOut {
+    let frames: Vec<String> = a1.frames.iter().map(|f| f.name.clone()).collect();
+    let targets = m
+        .tracks
+        .iter()
+        .enumerate()
+        .map(|(k, t)| TargetOut {
+            id: k + 1,
+            point: [t.point.x, t.point.y, t.point.z],
+            rms_px: t.rms_px,
+            observations: t
+                .views
+                .iter()
+                .map(|v| {
+                    let o = &obs[v.frame][v.obs];
+                    let cam = &a1.frames[v.frame].camera;
+                    let e = o.detected;
+                    ObservationOut {
+                        frame: frames[v.frame].clone(),
+                        detection: o.index,
+                        ellipse: EllipseOut { cx: e.cx, cy: e.cy, a: e.a, b: e.b, theta: e.theta },
+                        corrected: v.corrected.and_then(|c| cam.distort(&c)).map(|c| [c.x, c.y]),
+                        partner: v.partner.map(|p| frames[p].clone()),
+                    }
+                })
+                .collect(),
+        })
+        .collect();
+    MatchOut {
+        schema: "pipemeasure.match/1",
+        model: model.display().to_string(),
+        detections: obs.iter().map(Vec::len).sum(),
+        frames,
+        algorithm1: Algorithm1Out {
+            pairs: a1.pairs.len(),
+            tracks: a1.tracks.len(),
+            rejected_tracks: a1.rejected_tracks,
+            track_inlier_fraction: a1.track_inlier_fraction(),
+            reprojection_sigma_px: a1.reprojection_sigma,
+        },
+        candidates: m.candidates,
+        pair_matches: m.pair_matches,
+        conflicts: m.conflicts,
+        targets,
+    }
+}
+
+pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    let model = Reconstruction::read(&args.sfm)?;
+    if model.images.is_empty() {
+        bail!("the model {} has no registered images", args.sfm.display());
+    }
+    if !args.frames.is_dir() {
+        bail!("--frames {}: not a folder", args.frames.display());
+    }
+    let intrinsics = intrinsics_for(args.device.as_deref(), &model)?;
+    let a1 = algorithm1(&model, intrinsics.as_ref().map(|(i, _)| i), &RefineConfig::default())
+        .with_context(|| format!("Algorithm 1 on {}", args.sfm.display()))?;
+    let obs = detect_frames(&a1, &args.frames, args.min_semi_minor, globals.quiet)?;
+    let Some(camera) = model.cameras.values().next() else { bail!("the model has no camera") };
+    let size = (u32::try_from(camera.width).unwrap_or(u32::MAX), u32::try_from(camera.height).unwrap_or(u32::MAX));
+    let config = MatchConfig {
+        robust_triangulation: !args.no_robust_triangulation,
+        correct_before_triangulation: !args.no_eccentricity,
+        correct_centres: !args.no_eccentricity,
+        ..MatchConfig::default()
+    };
+    let cameras: Vec<_> = a1.frames.iter().map(|f| f.camera).collect();
+    let m = match_targets(&cameras, &obs, &a1.pairs, size, a1.reprojection_sigma, &config);
+    let out = output(&args.sfm, &a1, &obs, &m);
+    if let Some(path) = &args.json {
+        write_bytes_atomic(path, serde_json::to_string_pretty(&out)?.as_bytes())?;
+    }
+    let views: usize = m.tracks.iter().map(|t| t.views.len()).sum();
+    let corrected: usize = m.tracks.iter().flat_map(|t| &t.views).filter(|v| v.corrected.is_some()).count();
+    if !globals.quiet || args.json.is_none() {
+        outln!(
+            "{} frames, {} detections; Algorithm 1: {} overlapping pairs, {:.1} % of feature observations inliers, reprojection σ {:.2} px",
+            out.frames.len(),
+            out.detections,
+            a1.pairs.len(),
+            100.0 * a1.track_inlier_fraction(),
+            a1.reprojection_sigma
+        );
+        outln!(
+            "matched {} targets with {views} views ({corrected} centres corrected by Algorithm 3); {} two-view matches, {} refused as conflicts",
+            m.tracks.len(),
+            m.pair_matches,
+            m.conflicts
+        );
+        if let Some((_, profile)) = &intrinsics {
+            outln!("intrinsics from {profile}");
+        }
+        if let Some(path) = &args.json {
+            outln!("tracks written to {}", path.display());
+        }
+    }
+    if m.tracks.is_empty() {
+        bail!("no target was matched in two or more frames");
+    }
+    Ok(())
+}
