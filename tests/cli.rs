@@ -262,23 +262,46 @@ fn match_command_tracks_hold_one_target_each() {
     let dir = tempfile::tempdir().unwrap();
     let (code, _, stderr) = pipemeasure(
         dir.path(),
-        &["simulate", "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames", "10", "--out", "lab", "--quiet"],
+        &[
+            "simulate", "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames",
+            "10", "--out", "lab", "--quiet",
+        ],
         &[],
     );
     assert_eq!(code, 0, "{stderr}");
-    let (code, stdout, stderr) =
-        pipemeasure(dir.path(), &["match", "--frames", "lab/frames", "--sfm", "lab/sparse", "--json", "tracks.json"], &[]);
+    let (code, stdout, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "match",
+            "--frames",
+            "lab/frames",
+            "--sfm",
+            "lab/sparse",
+            "--json",
+            "tracks.json",
+        ],
+        &[],
+    );
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("matched"), "{stdout}");
     let truth = pipemeasure::sim::truth::Truth::read(&dir.path().join("lab/truth.json")).unwrap();
-    let out: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("tracks.json")).unwrap()).unwrap();
+    let out: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("tracks.json")).unwrap())
+            .unwrap();
     let targets = out["targets"].as_array().unwrap();
     assert!(targets.len() >= 20, "{} targets", targets.len());
     for t in targets {
         let mut ids = Vec::new();
         for o in t["observations"].as_array().unwrap() {
-            let frame = truth.frames.iter().find(|f| f.name == o["frame"].as_str().unwrap()).unwrap();
-            let (cx, cy) = (o["ellipse"]["cx"].as_f64().unwrap(), o["ellipse"]["cy"].as_f64().unwrap());
+            let frame = truth
+                .frames
+                .iter()
+                .find(|f| f.name == o["frame"].as_str().unwrap())
+                .unwrap();
+            let (cx, cy) = (
+                o["ellipse"]["cx"].as_f64().unwrap(),
+                o["ellipse"]["cy"].as_f64().unwrap(),
+            );
             // Every scene target whose true centre projects within 2 px (the truth's per-frame
             // list leaves out targets within 4 px of the border; the detector need not).
             let camera = truth.camera.camera();
@@ -287,16 +310,24 @@ fn match_command_tracks_hold_one_target_each() {
                 .iter()
                 .filter(|t| {
                     let c = nalgebra::Point3::from(nalgebra::Vector3::from(t.centre));
-                    pipemeasure::sim::truth::project(&camera, frame, &c).is_some_and(|uv| (uv.x - cx).hypot(uv.y - cy) < 2.0)
+                    pipemeasure::sim::truth::project(&camera, frame, &c)
+                        .is_some_and(|uv| (uv.x - cx).hypot(uv.y - cy) < 2.0)
                 })
                 .map(|t| t.id)
                 .collect();
             assert_eq!(near.len(), 1, "observation {o} is not one truth target");
             ids.push(near[0]);
         }
-        assert!(ids.iter().all(|i| *i == ids[0]), "a track mixes targets {ids:?}");
+        assert!(
+            ids.iter().all(|i| *i == ids[0]),
+            "a track mixes targets {ids:?}"
+        );
     }
-    let (code, _, stderr) = pipemeasure(dir.path(), &["match", "--frames", "nowhere", "--sfm", "lab/sparse"], &[]);
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &["match", "--frames", "nowhere", "--sfm", "lab/sparse"],
+        &[],
+    );
     assert_eq!(code, 1);
     assert!(stderr.contains("nowhere"), "{stderr}");
 }

@@ -20,7 +20,8 @@ pub struct EccentricityConfig {
     /// Least convergence angle of a partner view (degrees), default 20 (paper step 3a).
     pub min_convergence_deg: f64,
     /// When no view converges by `min_convergence_deg`, the widest partner is still used if it
-    /// converges by at least this much (degrees), default 5; below, the view keeps its fitted
+    /// converges by at least this much (degrees), default 3 (targets seen in two neighbouring
+    /// frames only: their plane is still good enough for the correction); below, the view keeps its fitted
     /// centre.
     pub fallback_convergence_deg: f64,
     /// Views whose ellipse is flatter than this minor/major ratio are not used as partners
@@ -36,7 +37,7 @@ impl Default for EccentricityConfig {
     fn default() -> Self {
         EccentricityConfig {
             min_convergence_deg: 20.0,
-            fallback_convergence_deg: 5.0,
+            fallback_convergence_deg: 3.0,
             min_axis_ratio: 0.2,
             max_correction_ratio: 3.0,
         }

@@ -469,10 +469,29 @@ fn corrections(
             }
         })
         .collect();
+    // Partners with a robust F first (cameras consistent with it); views left without one use
+    // the SfM poses' cameras (pose errors then tilt the plane a little: a weaker correction,
+    // better than none — e.g. a target whose converging views share too few features).
     let available = |k: usize, l: usize| pairs.has(views[k].frame, views[l].frame);
     let pair = |k: usize, l: usize| pairs.cameras(views[k].frame, views[l].frame, cameras);
-    correct_target(&conic_views, x, config, &available, &pair)
-        .into_iter()
+    let mut out = correct_target(&conic_views, x, config, &available, &pair);
+    if out.iter().any(Option::is_none) {
+        let global = |k: usize, l: usize| {
+            Some((
+                conic_views[k].p,
+                conic_views[k].eye,
+                conic_views[l].p,
+                conic_views[l].eye,
+            ))
+        };
+        let fallback = correct_target(&conic_views, x, config, &|_, _| true, &global);
+        for (o, f) in out.iter_mut().zip(fallback) {
+            if o.is_none() {
+                *o = f;
+            }
+        }
+    }
+    out.into_iter()
         .map(|c| c.map(|c| (c.centre, views[c.partner].frame)))
         .collect()
 }

@@ -101,11 +101,19 @@ struct MatchOut {
 
 /// The intrinsics to use: the profile's (scaled to the model's image size) or none (the
 /// model's camera).
-fn intrinsics_for(device: Option<&str>, model: &Reconstruction) -> Result<Option<(Intrinsics, String)>> {
+fn intrinsics_for(
+    device: Option<&str>,
+    model: &Reconstruction,
+) -> Result<Option<(Intrinsics, String)>> {
     let Some(spec) = device else { return Ok(None) };
     let (path, profile) = pipemeasure::profile::load_device(spec)?;
-    let Some(cam) = model.cameras.values().next() else { bail!("the model has no camera") };
-    let (w, h) = (u32::try_from(cam.width).unwrap_or(0), u32::try_from(cam.height).unwrap_or(0));
+    let Some(cam) = model.cameras.values().next() else {
+        bail!("the model has no camera")
+    };
+    let (w, h) = (
+        u32::try_from(cam.width).unwrap_or(0),
+        u32::try_from(cam.height).unwrap_or(0),
+    );
     let camera = profile.camera();
     let camera = if (camera.width, camera.height) == (w, h) {
         camera
@@ -124,8 +132,16 @@ fn intrinsics_for(device: Option<&str>, model: &Reconstruction) -> Result<Option
 }
 
 /// Detects the targets of every model frame, in parallel (one frame in memory per worker).
-fn detect_frames(a1: &Algorithm1, dir: &Path, min_semi_minor: f64, quiet: bool) -> Result<Vec<Vec<TargetObservation>>> {
-    let config = DetectConfig { min_semi_minor_px: min_semi_minor, ..DetectConfig::default() };
+fn detect_frames(
+    a1: &Algorithm1,
+    dir: &Path,
+    min_semi_minor: f64,
+    quiet: bool,
+) -> Result<Vec<Vec<TargetObservation>>> {
+    let config = DetectConfig {
+        min_semi_minor_px: min_semi_minor,
+        ..DetectConfig::default()
+    };
     Detector::new(config.clone())?;
     let progress = bar(a1.frames.len() as u64, "detecting", quiet);
     let result: Vec<Result<Vec<TargetObservation>>> = a1
@@ -137,8 +153,14 @@ fn detect_frames(a1: &Algorithm1, dir: &Path, min_semi_minor: f64, quiet: bool) 
             |detector, (k, frame)| {
                 let detector = detector.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
                 let path = dir.join(&frame.name);
-                let image = read_frame(&path).with_context(|| format!("frame {} of the model", frame.name))?;
-                let ellipses: Vec<_> = detector.detect(&image).ellipses.iter().map(|e| e.ellipse()).collect();
+                let image = read_frame(&path)
+                    .with_context(|| format!("frame {} of the model", frame.name))?;
+                let ellipses: Vec<_> = detector
+                    .detect(&image)
+                    .ellipses
+                    .iter()
+                    .map(|e| e.ellipse())
+                    .collect();
                 progress.inc(1);
                 Ok(observations(k, &frame.camera, &ellipses))
             },
@@ -168,8 +190,17 @@ fn output(model: &Path, a1: &Algorithm1, obs: &[Vec<TargetObservation>], m: &Mat
                     ObservationOut {
                         frame: frames[v.frame].clone(),
                         detection: o.index,
-                        ellipse: EllipseOut { cx: e.cx, cy: e.cy, a: e.a, b: e.b, theta: e.theta },
-                        corrected: v.corrected.and_then(|c| cam.distort(&c)).map(|c| [c.x, c.y]),
+                        ellipse: EllipseOut {
+                            cx: e.cx,
+                            cy: e.cy,
+                            a: e.a,
+                            b: e.b,
+                            theta: e.theta,
+                        },
+                        corrected: v
+                            .corrected
+                            .and_then(|c| cam.distort(&c))
+                            .map(|c| [c.x, c.y]),
                         partner: v.partner.map(|p| frames[p].clone()),
                     }
                 })
@@ -204,11 +235,20 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         bail!("--frames {}: not a folder", args.frames.display());
     }
     let intrinsics = intrinsics_for(args.device.as_deref(), &model)?;
-    let a1 = algorithm1(&model, intrinsics.as_ref().map(|(i, _)| i), &RefineConfig::default())
-        .with_context(|| format!("Algorithm 1 on {}", args.sfm.display()))?;
+    let a1 = algorithm1(
+        &model,
+        intrinsics.as_ref().map(|(i, _)| i),
+        &RefineConfig::default(),
+    )
+    .with_context(|| format!("Algorithm 1 on {}", args.sfm.display()))?;
     let obs = detect_frames(&a1, &args.frames, args.min_semi_minor, globals.quiet)?;
-    let Some(camera) = model.cameras.values().next() else { bail!("the model has no camera") };
-    let size = (u32::try_from(camera.width).unwrap_or(u32::MAX), u32::try_from(camera.height).unwrap_or(u32::MAX));
+    let Some(camera) = model.cameras.values().next() else {
+        bail!("the model has no camera")
+    };
+    let size = (
+        u32::try_from(camera.width).unwrap_or(u32::MAX),
+        u32::try_from(camera.height).unwrap_or(u32::MAX),
+    );
     let config = MatchConfig {
         robust_triangulation: !args.no_robust_triangulation,
         correct_before_triangulation: !args.no_eccentricity,
@@ -216,13 +256,25 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         ..MatchConfig::default()
     };
     let cameras: Vec<_> = a1.frames.iter().map(|f| f.camera).collect();
-    let m = match_targets(&cameras, &obs, &a1.pairs, size, a1.reprojection_sigma, &config);
+    let m = match_targets(
+        &cameras,
+        &obs,
+        &a1.pairs,
+        size,
+        a1.reprojection_sigma,
+        &config,
+    );
     let out = output(&args.sfm, &a1, &obs, &m);
     if let Some(path) = &args.json {
         write_bytes_atomic(path, serde_json::to_string_pretty(&out)?.as_bytes())?;
     }
     let views: usize = m.tracks.iter().map(|t| t.views.len()).sum();
-    let corrected: usize = m.tracks.iter().flat_map(|t| &t.views).filter(|v| v.corrected.is_some()).count();
+    let corrected: usize = m
+        .tracks
+        .iter()
+        .flat_map(|t| &t.views)
+        .filter(|v| v.corrected.is_some())
+        .count();
     if !globals.quiet || args.json.is_none() {
         outln!(
             "{} frames, {} detections; Algorithm 1: {} overlapping pairs, {:.1} % of feature observations inliers, reprojection σ {:.2} px",
