@@ -23,15 +23,10 @@ use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::geometry::triangulation::{Observation, camera_matrix, triangulate};
 use pipemeasure::sim::devices::{P30, preset_camera};
 use pipemeasure::sim::lab::look_at;
+use pipemeasure::sim::sfm::gaussian;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-
-fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
-    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-}
 
 fn perturb(pose: &Rigid3, rng: &mut ChaCha8Rng) -> Rigid3 {
     let omega = Vector3::new(gaussian(rng), gaussian(rng), gaussian(rng)) * 0.1f64.to_radians();

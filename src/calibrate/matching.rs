@@ -30,7 +30,7 @@ use super::eccentricity::{
 use super::refine::PairGeometry;
 use super::views::{FrameCamera, TargetObservation};
 use crate::geometry::epipolar::symmetric_distance;
-use crate::geometry::quan::{cone, invariants};
+use crate::geometry::quan::{cone, delta_of_cones};
 use crate::geometry::triangulation::{Observation, reprojection_rms, triangulate};
 use crate::robust::triangulation::triangulate_robust_bounded;
 use crate::robust::{LmedsConfig, SQRT_CHI2_975_2DOF};
@@ -299,13 +299,7 @@ impl<'a> PairIndex<'a> {
 
 /// |δ| of two unit-norm cones (math §2.2).
 fn abs_delta(a: &Matrix4<f64>, b: &Matrix4<f64>) -> f64 {
-    let [_, i4, i3, i2, _] = invariants(a, b);
-    let den = i3 * i3 + 4.0 * (i2 * i4).abs();
-    if den > 0.0 {
-        ((i3 * i3 - 4.0 * i2 * i4) / den).abs()
-    } else {
-        1.0
-    }
+    delta_of_cones(a, b).abs()
 }
 
 /// Step 4 for one pair: the candidates of eq. 2 and the mutual least-|δ| matches

@@ -208,11 +208,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
-        let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
-        let u2: f64 = rng.random();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-    }
+    use crate::sim::sfm::gaussian;
 
     #[test]
     fn orthogonal_distance_is_exact() {

@@ -49,7 +49,19 @@ pub fn delta(
     P2: &Matrix3x4<f64>,
     C2: &Matrix3<f64>,
 ) -> f64 {
-    let [_, i4, i3, i2, _] = invariants(&cone(P1, C1), &cone(P2, C2));
+    delta_of_cones(&cone(P1, C1), &cone(P2, C2))
+}
+
+/// δ of [`delta`] for two cones already scaled to unit norm (e.g. computed once per ellipse).
+#[allow(non_snake_case)]
+#[must_use]
+pub fn delta_of_cones(A: &Matrix4<f64>, B: &Matrix4<f64>) -> f64 {
+    let [_, i4, i3, i2, _] = invariants(A, B);
+    normalized_delta(i2, i3, i4)
+}
+
+/// `(I3² − 4·I2·I4) / (I3² + 4·|I2·I4|)`, 1 when both terms vanish.
+fn normalized_delta(i2: f64, i3: f64, i4: f64) -> f64 {
     let den = i3 * i3 + 4.0 * (i2 * i4).abs();
     if den > 0.0 {
         (i3 * i3 - 4.0 * i2 * i4) / den
@@ -89,12 +101,7 @@ pub fn conic_plane(
     if i2 == 0.0 || !i2.is_finite() {
         return None;
     }
-    let den = i3 * i3 + 4.0 * (i2 * i4).abs();
-    let delta = if den > 0.0 {
-        (i3 * i3 - 4.0 * i2 * i4) / den
-    } else {
-        1.0
-    };
+    let delta = normalized_delta(i2, i3, i4);
     let lambda0 = -i3 / (2.0 * i2);
     let Q0 = A + B * lambda0;
     let eig = Q0.symmetric_eigen();

@@ -105,6 +105,27 @@ pub struct Station {
     pub orientation: Orientation,
 }
 
+impl Station {
+    /// A phone at `eye` looking at `target` with world Z up, held in `orientation` (portrait is
+    /// a quarter turn about the optical axis) and rolled by a further `roll_jitter` (rad).
+    #[must_use]
+    pub fn held(
+        eye: &Point3<f64>,
+        target: &Point3<f64>,
+        orientation: Orientation,
+        roll_jitter: f64,
+    ) -> Self {
+        let roll = match orientation {
+            Orientation::Portrait => std::f64::consts::FRAC_PI_2,
+            Orientation::Landscape => 0.0,
+        } + roll_jitter;
+        Station {
+            cam_from_world: look_at(eye, target, &Vector3::z(), roll),
+            orientation,
+        }
+    }
+}
+
 /// `cam_from_world` of a camera at `eye` looking at `target`, image up along world `up`,
 /// rolled by `roll` about the optical axis (camera X right, Y down, Z forward).
 #[must_use]
@@ -287,14 +308,12 @@ pub fn path(config: &LabConfig, seed: u64) -> Vec<Station> {
                     + Vector3::z() * (height + pitch.tan() * distance),
             );
             let target = corner + jitter(&mut rng, 0.05 * scale);
-            let roll = match orientation {
-                Orientation::Portrait => std::f64::consts::FRAC_PI_2,
-                Orientation::Landscape => 0.0,
-            } + rng.random_range(-2f64..2.0).to_radians();
-            Station {
-                cam_from_world: look_at(&eye, &target, &Vector3::z(), roll),
+            Station::held(
+                &eye,
+                &target,
                 orientation,
-            }
+                rng.random_range(-2f64..2.0).to_radians(),
+            )
         })
         .collect()
 }

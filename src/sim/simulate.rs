@@ -292,8 +292,10 @@ pub fn write_truth(truth: &Truth, out: &Path) -> Result<PathBuf, WriteError> {
     Ok(path)
 }
 
-/// The lab's truth record around its frames and sparse-model truth.
-fn lab_truth(
+/// A scene's truth record around its frames and sparse-model truth (no pipes, TLS or dense
+/// data: the site adds those).
+fn truth_record(
+    scene_name: &str,
     options: &SimulateOptions,
     camera: &BrownCamera,
     scene: &Scene,
@@ -302,7 +304,7 @@ fn lab_truth(
 ) -> Truth {
     Truth {
         schema: TRUTH_SCHEMA.into(),
-        scene: "lab".into(),
+        scene: scene_name.into(),
         seed: options.seed,
         command: options.command.clone(),
         camera: TruthCamera {
@@ -345,7 +347,7 @@ pub fn simulate_lab(
     std::fs::create_dir_all(out).map_err(|e| WriteError::new(out, e))?;
     let frames = render_frames(&scene, &camera, &stations, gain, options, out, progress)?;
     let sfm = write_sparse(&scene, &camera, &stations, options, out)?;
-    let truth = lab_truth(options, &camera, &scene, frames, sfm);
+    let truth = truth_record("lab", options, &camera, &scene, frames, sfm);
     write_truth(&truth, out)?;
     Ok(truth)
 }
@@ -385,7 +387,10 @@ pub fn lab_geometry(
     let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
     let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
     let (model, sfm) = stand_in(&scene, &camera, &poses, &names, &options.sfm, options.seed);
-    Ok((lab_truth(options, &camera, &scene, frames, sfm), model))
+    Ok((
+        truth_record("lab", options, &camera, &scene, frames, sfm),
+        model,
+    ))
 }
 
 /// Site-specific options.
@@ -456,21 +461,6 @@ pub fn simulate_site(
     crate::io::tls::write_targets(&out.join("tls_targets.csv"), &targets)?;
 
     let truth = Truth {
-        schema: TRUTH_SCHEMA.into(),
-        scene: "site".into(),
-        seed: options.seed,
-        command: options.command.clone(),
-        camera: TruthCamera {
-            device: options.device.clone(),
-            width: camera.width,
-            height: camera.height,
-            intrinsics: camera.intrinsics,
-        },
-        render: options.render.clone(),
-        margin_px: options.margin_px,
-        targets: scene.targets.clone(),
-        frames,
-        sfm: Some(sfm),
         pipes: site.site.pipe_truth(),
         tls: Some(super::truth::TlsTruth {
             station: site.tls.station,
@@ -486,6 +476,7 @@ pub fn simulate_site(
             fused_points: fused.len(),
             labels: obs.labels.clone(),
         }),
+        ..truth_record("site", options, &camera, &scene, frames, sfm)
     };
     write_truth(&truth, out)?;
     Ok(truth)

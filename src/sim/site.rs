@@ -10,7 +10,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::lab::{Station, look_at};
+use super::lab::Station;
 use super::scene::{Cylinder, Light, Polarity, Rect, Scene};
 use super::texture::{Texture, TextureStyle};
 use super::truth::{Orientation, PipeTruth};
@@ -306,14 +306,12 @@ pub fn path(config: &SiteConfig, seed: u64) -> Vec<Station> {
                     0.0,
                     rng.random_range(-0.05..0.05),
                 );
-            let roll = match orientation {
-                Orientation::Portrait => std::f64::consts::FRAC_PI_2,
-                Orientation::Landscape => 0.0,
-            } + rng.random_range(-2f64..2.0).to_radians();
-            Station {
-                cam_from_world: look_at(&eye, &target, &Vector3::z(), roll),
+            Station::held(
+                &eye,
+                &target,
                 orientation,
-            }
+                rng.random_range(-2f64..2.0).to_radians(),
+            )
         })
         .collect()
 }
