@@ -36,6 +36,7 @@
 //! assert!((xy.x - 0.15).abs() < 1e-12 && (xy.y + 0.1).abs() < 1e-12);
 //! ```
 
+pub mod adjust;
 pub mod calibrate;
 pub mod camera;
 pub mod detect;

@@ -1,0 +1,242 @@
+//! Camera models the adjustment is generic over: each says how many intrinsics belong to one
+//! camera (`local`, BAL's f, k1, k2) and how many are shared by every camera (`global`, the
+//! ten `brown` intrinsics of a phone calibrated once per device), and projects a camera-frame
+//! point with analytic Jacobians.
+
+use nalgebra::{Matrix2x3, Vector2, Vector3};
+
+use crate::camera::Intrinsics;
+
+/// Where [`CameraModel::project`] writes its Jacobians.
+#[derive(Debug)]
+pub struct ModelJacobians<'a> {
+    /// `∂uv/∂p_cam` (2×3).
+    pub d_p_cam: &'a mut Matrix2x3<f64>,
+    /// `∂uv/∂local`, row-major 2×`local_len`.
+    pub d_local: &'a mut [f64],
+    /// `∂uv/∂global`, row-major 2×`global_len`.
+    pub d_global: &'a mut [f64],
+}
+
+/// A projection model for [`crate::adjust::Problem`].
+pub trait CameraModel: Sync {
+    /// Intrinsic parameters carried by each camera.
+    fn local_len(&self) -> usize;
+    /// Intrinsic parameters shared by every camera.
+    fn global_len(&self) -> usize;
+    /// Names of the shared parameters (for summaries).
+    fn global_names(&self) -> Vec<&'static str>;
+    /// Projects a camera-frame point with one camera's `local` and the shared `global`
+    /// parameters, writing the Jacobians when asked; `None` where the model is undefined
+    /// (behind the camera, outside the distortion's valid region).
+    fn project(
+        &self,
+        local: &[f64],
+        global: &[f64],
+        p_cam: &Vector3<f64>,
+        jacobians: Option<ModelJacobians<'_>>,
+    ) -> Option<Vector2<f64>>;
+}
+
+/// The `brown` model with the ten intrinsics of [`crate::camera::Term::ALL`] shared by every
+/// camera (one phone, one calibration).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BrownModel;
+
+impl CameraModel for BrownModel {
+    fn local_len(&self) -> usize {
+        0
+    }
+
+    fn global_len(&self) -> usize {
+        10
+    }
+
+    fn global_names(&self) -> Vec<&'static str> {
+        crate::camera::Term::ALL.iter().map(|t| t.name()).collect()
+    }
+
+    fn project(
+        &self,
+        _local: &[f64],
+        global: &[f64],
+        p_cam: &Vector3<f64>,
+        jacobians: Option<ModelJacobians<'_>>,
+    ) -> Option<Vector2<f64>> {
+        let mut a = [0.0; 10];
+        a.copy_from_slice(&global[..10]);
+        let intrinsics = Intrinsics::from_array(a);
+        match jacobians {
+            None => intrinsics.project(p_cam),
+            Some(j) => {
+                let p = intrinsics.project_with_jacobians(p_cam)?;
+                *j.d_p_cam = p.d_uv_d_p_cam;
+                for r in 0..2 {
+                    for c in 0..10 {
+                        j.d_global[r * 10 + c] = p.d_uv_d_intrinsics[(r, c)];
+                    }
+                }
+                Some(p.uv)
+            }
+        }
+    }
+}
+
+/// BAL's camera: per camera f, k1, k2; `p = −P/P.z`, `uv = f·(1 + k1·|p|² + k2·|p|⁴)·p`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BalModel;
+
+impl CameraModel for BalModel {
+    fn local_len(&self) -> usize {
+        3
+    }
+
+    fn global_len(&self) -> usize {
+        0
+    }
+
+    fn global_names(&self) -> Vec<&'static str> {
+        Vec::new()
+    }
+
+    fn project(
+        &self,
+        local: &[f64],
+        _global: &[f64],
+        p_cam: &Vector3<f64>,
+        jacobians: Option<ModelJacobians<'_>>,
+    ) -> Option<Vector2<f64>> {
+        if p_cam.z == 0.0 {
+            return None;
+        }
+        let (f, k1, k2) = (local[0], local[1], local[2]);
+        let iz = -1.0 / p_cam.z;
+        let (x, y) = (p_cam.x * iz, p_cam.y * iz);
+        let r2 = x * x + y * y;
+        let radial = 1.0 + r2 * (k1 + k2 * r2);
+        let uv = Vector2::new(f * radial * x, f * radial * y);
+        if let Some(j) = jacobians {
+            // d(radial)/d(r²)
+            let dr = k1 + 2.0 * k2 * r2;
+            // ∂uv/∂(x, y)
+            let a = f * (radial + 2.0 * x * x * dr);
+            let b = f * 2.0 * x * y * dr;
+            let d = f * (radial + 2.0 * y * y * dr);
+            // ∂(x, y)/∂P with x = X·iz, iz = −1/Z: ∂x/∂X = iz, ∂x/∂Z = X/Z² = x·iz.
+            let dx = [iz, 0.0, x * iz];
+            let dy = [0.0, iz, y * iz];
+            for c in 0..3 {
+                j.d_p_cam[(0, c)] = a * dx[c] + b * dy[c];
+                j.d_p_cam[(1, c)] = b * dx[c] + d * dy[c];
+            }
+            j.d_local[0] = radial * x;
+            j.d_local[1] = f * r2 * x;
+            j.d_local[2] = f * r2 * r2 * x;
+            j.d_local[3] = radial * y;
+            j.d_local[4] = f * r2 * y;
+            j.d_local[5] = f * r2 * r2 * y;
+        }
+        Some(uv)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Central differences of `project` against its analytic Jacobians.
+    fn check_jacobians<M: CameraModel>(model: &M, local: &[f64], global: &[f64], p: Vector3<f64>) {
+        let (nl, ng) = (model.local_len(), model.global_len());
+        let mut dp = Matrix2x3::zeros();
+        let mut dl = vec![0.0; 2 * nl];
+        let mut dg = vec![0.0; 2 * ng];
+        model
+            .project(
+                local,
+                global,
+                &p,
+                Some(ModelJacobians {
+                    d_p_cam: &mut dp,
+                    d_local: &mut dl,
+                    d_global: &mut dg,
+                }),
+            )
+            .unwrap();
+        let proj = |l: &[f64], g: &[f64], p: &Vector3<f64>| model.project(l, g, p, None).unwrap();
+        for c in 0..3 {
+            let h = 1e-6 * p.norm();
+            let (mut a, mut b) = (p, p);
+            a[c] += h;
+            b[c] -= h;
+            let num = (proj(local, global, &a) - proj(local, global, &b)) / (2.0 * h);
+            for r in 0..2 {
+                assert!(
+                    (num[r] - dp[(r, c)]).abs() < 1e-6 * (1.0 + num[r].abs()),
+                    "p {r}{c}"
+                );
+            }
+        }
+        for k in 0..nl {
+            let h = 1e-7 * (1.0 + local[k].abs());
+            let (mut a, mut b) = (local.to_vec(), local.to_vec());
+            a[k] += h;
+            b[k] -= h;
+            let num = (proj(&a, global, &p) - proj(&b, global, &p)) / (2.0 * h);
+            for r in 0..2 {
+                let an = dl[r * nl + k];
+                assert!(
+                    (num[r] - an).abs() < 1e-5 * (1.0 + an.abs()),
+                    "local {k}: {num} {an}"
+                );
+            }
+        }
+        for k in 0..ng {
+            let h = 1e-7 * (1.0 + global[k].abs());
+            let (mut a, mut b) = (global.to_vec(), global.to_vec());
+            a[k] += h;
+            b[k] -= h;
+            let num = (proj(local, &a, &p) - proj(local, &b, &p)) / (2.0 * h);
+            for r in 0..2 {
+                let an = dg[r * ng + k];
+                assert!(
+                    (num[r] - an).abs() < 1e-5 * (1.0 + an.abs()),
+                    "global {k}: {num} {an}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn bal_jacobians_match_central_differences() {
+        check_jacobians(
+            &BalModel,
+            &[520.0, -0.08, 0.012],
+            &[],
+            Vector3::new(0.4, -0.3, -2.5),
+        );
+    }
+
+    #[test]
+    fn brown_jacobians_match_central_differences() {
+        let i = [
+            3000.0, 1930.0, 1075.0, 0.012, -0.009, 0.004, 1.6e-4, -2e-4, 0.3, -0.2,
+        ];
+        check_jacobians(&BrownModel, &[], &i, Vector3::new(0.3, -0.2, 1.7));
+    }
+
+    #[test]
+    fn bal_projection_follows_the_documented_formula() {
+        // P = (1, 2, −4): p = −P/P.z = (0.25, 0.5), r² = 0.3125.
+        let uv = BalModel
+            .project(
+                &[100.0, 0.1, 0.01],
+                &[],
+                &Vector3::new(1.0, 2.0, -4.0),
+                None,
+            )
+            .unwrap();
+        let radial = 1.0 + 0.1 * 0.3125 + 0.01 * 0.3125 * 0.3125;
+        assert!((uv.x - 100.0 * radial * 0.25).abs() < 1e-12);
+        assert!((uv.y - 100.0 * radial * 0.5).abs() < 1e-12);
+    }
+}

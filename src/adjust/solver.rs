@@ -1,0 +1,906 @@
+//! Levenberg–Marquardt with the Schur complement on the points (Triggs et al. 2000, §6.1;
+//! docs/math.md "Schur"), the reduced camera system solved by faer's dense Cholesky.
+//!
+//! Each iteration linearises once, then tries damped steps until one is accepted:
+//!
+//! ```text
+//! [U + λD_U   W      ] [δc]     [b_c]       S = U + λD_U − W (V + λD_V)⁻¹ Wᵀ
+//! [Wᵀ         V + λD_V] [δp] = − [b_p]   →  S·δc = −b_c + W (V + λD_V)⁻¹ b_p
+//!                                           δp = (V + λD_V)⁻¹ (−b_p − Wᵀ δc)
+//! ```
+//!
+//! `c` holds the shared intrinsics first, then each camera's pose (6, the local perturbation of
+//! [`crate::geometry::pose`]) and per-camera intrinsics. `D` is `diag(JᵀJ)` clamped to
+//! `[1e-6, 1e32]`, `λ = 1/μ`, and the trust-region radius `μ` follows Ceres' rule
+//! (`μ ← μ / max(1/3, 1 − (2ρ − 1)³)` on success, `μ ← μ/ν, ν ← 2ν` on failure), so iteration
+//! counts compare with Ceres' `LEVENBERG_MARQUARDT` + `SPARSE_SCHUR`.
+//!
+//! Work is split across rayon tasks by output block (observations, points, rows of `S`), and
+//! every sum is taken in a fixed order, so the result does not depend on the thread count.
+
+use faer::dyn_stack::{MemBuffer, MemStack};
+use faer::linalg::cholesky::llt;
+use faer::{MatMut, Par};
+use nalgebra::{Matrix2x3, Matrix3, Vector3, Vector6};
+use rayon::prelude::*;
+
+use super::model::{CameraModel, ModelJacobians};
+use super::problem::Problem;
+use super::{AdjustConfig, AdjustError, AdjustSummary, Loss, Termination};
+use crate::geometry::pose::{Rigid3, retract, skew};
+
+/// Observations per chunk of the fixed-order parallel sums.
+const CHUNK: usize = 512;
+/// Ceres' `min_lm_diagonal` and `max_lm_diagonal`.
+const MIN_DIAGONAL: f64 = 1e-6;
+const MAX_DIAGONAL: f64 = 1e32;
+/// Ceres' `min_relative_decrease`.
+const MIN_RELATIVE_DECREASE: f64 = 1e-3;
+/// Bounds of the trust-region radius.
+const MAX_RADIUS: f64 = 1e16;
+const MIN_RADIUS: f64 = 1e-32;
+
+/// Compressed lists of observation indices per point and per camera.
+#[derive(Debug, Clone)]
+pub(crate) struct Incidence {
+    pub(crate) by_point: Vec<usize>,
+    pub(crate) point_start: Vec<usize>,
+    pub(crate) by_camera: Vec<usize>,
+    pub(crate) camera_start: Vec<usize>,
+    /// The point of each observation.
+    pub(crate) point_of: Vec<usize>,
+}
+
+impl Incidence {
+    pub(crate) fn new<M: CameraModel>(p: &Problem<M>) -> Self {
+        let (by_point, point_start) = group(p.observations.iter().map(|o| o.point), p.points.len());
+        let (by_camera, camera_start) =
+            group(p.observations.iter().map(|o| o.camera), p.num_cameras());
+        Incidence {
+            by_point,
+            point_start,
+            by_camera,
+            camera_start,
+            point_of: p.observations.iter().map(|o| o.point).collect(),
+        }
+    }
+
+    pub(crate) fn of_point(&self, p: usize) -> &[usize] {
+        &self.by_point[self.point_start[p]..self.point_start[p + 1]]
+    }
+
+    pub(crate) fn of_camera(&self, c: usize) -> &[usize] {
+        &self.by_camera[self.camera_start[c]..self.camera_start[c + 1]]
+    }
+}
+
+/// Counting sort of observation indices by key.
+fn group(keys: impl Iterator<Item = usize> + Clone, n: usize) -> (Vec<usize>, Vec<usize>) {
+    let mut start = vec![0usize; n + 1];
+    for k in keys.clone() {
+        start[k + 1] += 1;
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let mut next = start.clone();
+    let mut out = vec![0usize; start[n]];
+    for (o, k) in keys.enumerate() {
+        out[next[k]] = o;
+        next[k] += 1;
+    }
+    (out, start)
+}
+
+/// Sizes of the blocks.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Dims {
+    /// Shared intrinsics.
+    pub(crate) dg: usize,
+    /// Per-camera intrinsics.
+    pub(crate) nl: usize,
+    /// One camera block: 6 + nl.
+    pub(crate) dc: usize,
+    /// Cameras.
+    pub(crate) n_cam: usize,
+    /// Reduced system: dg + n_cam·dc.
+    pub(crate) n_r: usize,
+    /// Stride of one observation's record in the Jacobian buffer.
+    pub(crate) stride: usize,
+}
+
+impl Dims {
+    pub(crate) fn of<M: CameraModel>(p: &Problem<M>) -> Self {
+        let dg = p.model.global_len();
+        let nl = p.model.local_len();
+        let dc = 6 + nl;
+        let n_cam = p.num_cameras();
+        Dims {
+            dg,
+            nl,
+            dc,
+            n_cam,
+            n_r: dg + n_cam * dc,
+            // r (2), jp (2×3), jc (2×dc), jg (2×dg)
+            stride: 2 + 6 + 2 * dc + 2 * dg,
+        }
+    }
+}
+
+/// The value of the loss and its derivative at `s = w·|r|²`.
+fn loss(l: Loss, s: f64) -> (f64, f64) {
+    match l {
+        Loss::Squared => (s, 1.0),
+        Loss::Huber(b) => {
+            let b2 = b * b;
+            if s <= b2 {
+                (s, 1.0)
+            } else {
+                let rs = s.sqrt();
+                (2.0 * b * rs - b2, b / rs)
+            }
+        }
+        Loss::Cauchy(b) => {
+            let b2 = b * b;
+            (b2 * (s / b2).ln_1p(), 1.0 / (1.0 + s / b2))
+        }
+    }
+}
+
+/// Linearises one observation into `rec` (residual and Jacobians scaled by the square root of
+/// the IRLS weight); returns `false` (record zeroed) where the model is undefined.
+pub(crate) fn linearise<M: CameraModel>(
+    p: &Problem<M>,
+    dims: Dims,
+    o: usize,
+    loss_fn: Loss,
+    rec: &mut [f64],
+) -> bool {
+    let obs = &p.observations[o];
+    rec.fill(0.0);
+    if obs.weight == 0.0 {
+        return true;
+    }
+    let pose = &p.cam_from_world[obs.camera];
+    let r_x = pose.rotation * p.points[obs.point];
+    let p_cam = r_x + pose.translation.vector;
+    let mut d_p_cam = Matrix2x3::zeros();
+    let (head, tail) = rec.split_at_mut(8 + 2 * dims.dc);
+    let mut d_local = [0.0; 32];
+    let d_local = &mut d_local[..2 * dims.nl];
+    let Some(uv) = p.model.project(
+        p.local_of(obs.camera),
+        &p.global,
+        &p_cam,
+        Some(ModelJacobians {
+            d_p_cam: &mut d_p_cam,
+            d_local,
+            d_global: tail,
+        }),
+    ) else {
+        rec.fill(0.0);
+        return false;
+    };
+    let r = uv - obs.uv;
+    let (_, d_rho) = loss(loss_fn, obs.weight * r.norm_squared());
+    let sw = (obs.weight * d_rho).sqrt();
+    head[0] = sw * r.x;
+    head[1] = sw * r.y;
+    let rot = pose.rotation.to_rotation_matrix();
+    let jp = d_p_cam * rot.matrix();
+    let jw = -d_p_cam * skew(&r_x);
+    for row in 0..2 {
+        for c in 0..3 {
+            head[2 + row * 3 + c] = sw * jp[(row, c)];
+        }
+        let jc = &mut head[8 + row * dims.dc..8 + (row + 1) * dims.dc];
+        for c in 0..3 {
+            jc[c] = sw * jw[(row, c)];
+            jc[3 + c] = sw * d_p_cam[(row, c)];
+        }
+        for c in 0..dims.nl {
+            jc[6 + c] = sw * d_local[row * dims.nl + c];
+        }
+    }
+    for v in tail.iter_mut() {
+        *v *= sw;
+    }
+    true
+}
+
+/// A view of one observation's record.
+struct Rec<'a> {
+    r: &'a [f64],
+    jp: &'a [f64],
+    jc: &'a [f64],
+    jg: &'a [f64],
+}
+
+fn view(rec: &[f64], dims: Dims) -> Rec<'_> {
+    let (r, rest) = rec.split_at(2);
+    let (jp, rest) = rest.split_at(6);
+    let (jc, jg) = rest.split_at(2 * dims.dc);
+    Rec { r, jp, jc, jg }
+}
+
+/// `Aᵀ·B` of two row-major 2×m and 2×n blocks, accumulated into row-major m×n `out`.
+fn add_at_b(a: &[f64], m: usize, b: &[f64], n: usize, out: &mut [f64]) {
+    for i in 0..m {
+        let (a0, a1) = (a[i], a[m + i]);
+        if a0 == 0.0 && a1 == 0.0 {
+            continue;
+        }
+        let row = &mut out[i * n..(i + 1) * n];
+        for j in 0..n {
+            row[j] += a0 * b[j] + a1 * b[n + j];
+        }
+    }
+}
+
+/// `Aᵀ·r` of a row-major 2×m block, accumulated.
+fn add_at_r(a: &[f64], m: usize, r: &[f64], out: &mut [f64]) {
+    for i in 0..m {
+        out[i] += a[i] * r[0] + a[m + i] * r[1];
+    }
+}
+
+/// Normal-equation blocks of one linearisation.
+struct Normal {
+    /// Per point: V (3×3).
+    v: Vec<Matrix3<f64>>,
+    /// Per point: b_p.
+    bp: Vec<Vector3<f64>>,
+    /// Per point: W_gp (dg×3), row-major.
+    wg: Vec<f64>,
+    /// Per observation: W_op = jcᵀ jp (dc×3), row-major.
+    wo: Vec<f64>,
+    /// Per camera: U_i (dc×dc).
+    u: Vec<f64>,
+    /// Per camera: U_gi (dg×dc).
+    ugc: Vec<f64>,
+    /// Per camera: b_i.
+    bc: Vec<f64>,
+    /// Shared: U_g (dg×dg) and b_g.
+    ug: Vec<f64>,
+    bg: Vec<f64>,
+    /// Per camera: partial U_g and b_g (summed in camera order).
+    ug_part: Vec<f64>,
+    bg_part: Vec<f64>,
+}
+
+impl Normal {
+    fn new(dims: Dims, n_pts: usize, n_obs: usize) -> Self {
+        let Dims { dg, dc, n_cam, .. } = dims;
+        Normal {
+            v: vec![Matrix3::zeros(); n_pts],
+            bp: vec![Vector3::zeros(); n_pts],
+            // Blocks sized by dg get at least one slot each so the parallel zips below keep
+            // one chunk per point or camera when there are no shared intrinsics.
+            wg: vec![0.0; n_pts * (dg * 3).max(1)],
+            wo: vec![0.0; n_obs * dc * 3],
+            u: vec![0.0; n_cam * dc * dc],
+            ugc: vec![0.0; n_cam * (dg * dc).max(1)],
+            bc: vec![0.0; n_cam * dc],
+            ug: vec![0.0; dg * dg],
+            bg: vec![0.0; dg],
+            ug_part: vec![0.0; n_cam * (dg * dg).max(1)],
+            bg_part: vec![0.0; n_cam * dg.max(1)],
+        }
+    }
+
+    /// Builds every block from the Jacobian records.
+    fn build(&mut self, dims: Dims, inc: &Incidence, jac: &[f64]) {
+        let Dims { dg, dc, stride, .. } = dims;
+        self.v
+            .par_iter_mut()
+            .zip(self.bp.par_iter_mut())
+            .zip(self.wg.par_chunks_mut((dg * 3).max(1)))
+            .enumerate()
+            .for_each(|(p, ((v, bp), wg))| {
+                let mut vv = [0.0; 9];
+                let mut b = [0.0; 3];
+                wg.fill(0.0);
+                for &o in inc.of_point(p) {
+                    let rec = view(&jac[o * stride..(o + 1) * stride], dims);
+                    add_at_b(rec.jp, 3, rec.jp, 3, &mut vv);
+                    add_at_r(rec.jp, 3, rec.r, &mut b);
+                    if dg > 0 {
+                        add_at_b(rec.jg, dg, rec.jp, 3, wg);
+                    }
+                }
+                *v = Matrix3::from_row_slice(&vv);
+                *bp = Vector3::from_row_slice(&b);
+            });
+        self.wo
+            .par_chunks_mut(dc * 3)
+            .enumerate()
+            .for_each(|(o, w)| {
+                let rec = view(&jac[o * stride..(o + 1) * stride], dims);
+                w.fill(0.0);
+                add_at_b(rec.jc, dc, rec.jp, 3, w);
+            });
+        self.u
+            .par_chunks_mut(dc * dc)
+            .zip(self.ugc.par_chunks_mut((dg * dc).max(1)))
+            .zip(self.bc.par_chunks_mut(dc))
+            .zip(self.ug_part.par_chunks_mut((dg * dg).max(1)))
+            .zip(self.bg_part.par_chunks_mut(dg.max(1)))
+            .enumerate()
+            .for_each(|(c, ((((u, ugc), bc), ugp), bgp))| {
+                u.fill(0.0);
+                ugc.fill(0.0);
+                bc.fill(0.0);
+                ugp.fill(0.0);
+                bgp.fill(0.0);
+                for &o in inc.of_camera(c) {
+                    let rec = view(&jac[o * stride..(o + 1) * stride], dims);
+                    add_at_b(rec.jc, dc, rec.jc, dc, u);
+                    add_at_r(rec.jc, dc, rec.r, bc);
+                    if dg > 0 {
+                        add_at_b(rec.jg, dg, rec.jc, dc, ugc);
+                        add_at_b(rec.jg, dg, rec.jg, dg, ugp);
+                        add_at_r(rec.jg, dg, rec.r, bgp);
+                    }
+                }
+            });
+        self.ug.fill(0.0);
+        self.bg.fill(0.0);
+        if dg > 0 {
+            for (ugp, bgp) in self.ug_part.chunks(dg * dg).zip(self.bg_part.chunks(dg)) {
+                for (a, b) in self.ug.iter_mut().zip(ugp) {
+                    *a += b;
+                }
+                for (a, b) in self.bg.iter_mut().zip(bgp) {
+                    *a += b;
+                }
+            }
+        }
+    }
+}
+
+/// Indices of the reduced system that are held fixed.
+pub(crate) fn pinned_indices<M: CameraModel>(p: &Problem<M>, dims: Dims) -> Vec<usize> {
+    let mut out: Vec<usize> = p.fixed.global.clone();
+    for c in 0..dims.n_cam {
+        let base = dims.dg + c * dims.dc;
+        if p.fixed.poses.contains(&c) {
+            out.extend(base..base + 6);
+        }
+        out.extend(p.fixed.local.iter().map(|&k| base + 6 + k));
+    }
+    out.sort_unstable();
+    out.dedup();
+    out
+}
+
+/// The reduced system's right-hand side and matrix for one damping value, assembled by row
+/// blocks in parallel. Returns `false` when a point block cannot be inverted.
+#[allow(clippy::too_many_arguments)]
+fn assemble_reduced(
+    dims: Dims,
+    inc: &Incidence,
+    obs_camera: &[usize],
+    nrm: &Normal,
+    lambda: f64,
+    pinned: &[usize],
+    vinv: &mut [Matrix3<f64>],
+    s: &mut [f64],
+    rhs: &mut [f64],
+) -> bool {
+    let Dims { dg, dc, n_r, .. } = dims;
+    let ok = vinv.par_iter_mut().zip(nrm.v.par_iter()).all(|(vi, v)| {
+        let mut a = *v;
+        for k in 0..3 {
+            a[(k, k)] += lambda * v[(k, k)].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
+        }
+        match a.try_inverse() {
+            Some(inv) => {
+                *vi = inv;
+                true
+            }
+            None => false,
+        }
+    });
+    if !ok {
+        return false;
+    }
+    let vinv: &[Matrix3<f64>] = vinv;
+    let (s_g, s_c) = s.split_at_mut(dg * n_r);
+    let (rhs_g, rhs_c) = rhs.split_at_mut(dg);
+    // Shared-intrinsics rows.
+    if dg > 0 {
+        s_g.fill(0.0);
+        for a in 0..dg {
+            for b in 0..dg {
+                s_g[a * n_r + b] = nrm.ug[a * dg + b];
+            }
+            s_g[a * n_r + a] += lambda * nrm.ug[a * dg + a].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
+            rhs_g[a] = -nrm.bg[a];
+            for c in 0..dims.n_cam {
+                let ugc = &nrm.ugc[c * dg * dc..(c + 1) * dg * dc];
+                s_g[a * n_r + dg + c * dc..a * n_r + dg + (c + 1) * dc]
+                    .copy_from_slice(&ugc[a * dc..(a + 1) * dc]);
+            }
+        }
+        let mut y = vec![0.0; dg * 3];
+        for p in 0..vinv.len() {
+            let wg = &nrm.wg[p * dg * 3..(p + 1) * dg * 3];
+            mul_block_3x3(wg, dg, &vinv[p], &mut y);
+            let bp = &nrm.bp[p];
+            for a in 0..dg {
+                rhs_g[a] += y[a * 3] * bp.x + y[a * 3 + 1] * bp.y + y[a * 3 + 2] * bp.z;
+            }
+            sub_y_wt(&y, dg, wg, dg, s_g, n_r, 0);
+            for &o in inc.of_point(p) {
+                let wo = &nrm.wo[o * dc * 3..(o + 1) * dc * 3];
+                sub_y_wt(&y, dg, wo, dc, s_g, n_r, dg + obs_camera[o] * dc);
+            }
+        }
+    }
+    // Camera rows.
+    s_c.par_chunks_mut(dc * n_r)
+        .zip(rhs_c.par_chunks_mut(dc))
+        .enumerate()
+        .for_each(|(c, (rows, rhs))| {
+            rows.fill(0.0);
+            let u = &nrm.u[c * dc * dc..(c + 1) * dc * dc];
+            let col0 = dg + c * dc;
+            for a in 0..dc {
+                rows[a * n_r + col0..a * n_r + col0 + dc].copy_from_slice(&u[a * dc..(a + 1) * dc]);
+                rows[a * n_r + col0 + a] +=
+                    lambda * u[a * dc + a].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
+                rhs[a] = -nrm.bc[c * dc + a];
+                for g in 0..dg {
+                    rows[a * n_r + g] = nrm.ugc[c * dg * dc + g * dc + a];
+                }
+            }
+            let mut y = [0.0; 3 * 32];
+            let y = &mut y[..dc * 3];
+            for &o in inc.of_camera(c) {
+                let p = obs_pointer(inc, o);
+                let wo = &nrm.wo[o * dc * 3..(o + 1) * dc * 3];
+                mul_block_3x3(wo, dc, &vinv[p], y);
+                let bp = &nrm.bp[p];
+                for a in 0..dc {
+                    rhs[a] += y[a * 3] * bp.x + y[a * 3 + 1] * bp.y + y[a * 3 + 2] * bp.z;
+                }
+                if dg > 0 {
+                    sub_y_wt(
+                        y,
+                        dc,
+                        &nrm.wg[p * dg * 3..(p + 1) * dg * 3],
+                        dg,
+                        rows,
+                        n_r,
+                        0,
+                    );
+                }
+                for &o2 in inc.of_point(p) {
+                    let w2 = &nrm.wo[o2 * dc * 3..(o2 + 1) * dc * 3];
+                    sub_y_wt(y, dc, w2, dc, rows, n_r, dg + obs_camera[o2] * dc);
+                }
+            }
+        });
+    for &k in pinned {
+        for j in 0..n_r {
+            s[k * n_r + j] = 0.0;
+            s[j * n_r + k] = 0.0;
+        }
+        s[k * n_r + k] = 1.0;
+        rhs[k] = 0.0;
+    }
+    true
+}
+
+/// The point of observation `o` (looked up through the incidence of its camera's record).
+fn obs_pointer(inc: &Incidence, o: usize) -> usize {
+    inc.point_of[o]
+}
+
+/// `out = A·M` for row-major `A` (m×3) and a 3×3 `M`.
+fn mul_block_3x3(a: &[f64], m: usize, mat: &Matrix3<f64>, out: &mut [f64]) {
+    for i in 0..m {
+        let (a0, a1, a2) = (a[i * 3], a[i * 3 + 1], a[i * 3 + 2]);
+        for j in 0..3 {
+            out[i * 3 + j] = a0 * mat[(0, j)] + a1 * mat[(1, j)] + a2 * mat[(2, j)];
+        }
+    }
+}
+
+/// `rows[:, col0..col0+n] −= Y·Wᵀ` for row-major `Y` (m×3) and `W` (n×3).
+fn sub_y_wt(y: &[f64], m: usize, w: &[f64], n: usize, rows: &mut [f64], n_r: usize, col0: usize) {
+    for a in 0..m {
+        let (y0, y1, y2) = (y[a * 3], y[a * 3 + 1], y[a * 3 + 2]);
+        let row = &mut rows[a * n_r + col0..a * n_r + col0 + n];
+        for (b, v) in row.iter_mut().enumerate() {
+            *v -= y0 * w[b * 3] + y1 * w[b * 3 + 1] + y2 * w[b * 3 + 2];
+        }
+    }
+}
+
+/// Factorises the symmetric positive definite `s` (n×n) in place and solves `s·x = rhs`;
+/// `false` if it is not positive definite.
+pub(crate) fn cholesky_solve(
+    s: &mut [f64],
+    n: usize,
+    rhs: &mut [f64],
+    stack: &mut MemBuffer,
+) -> bool {
+    let mut a = MatMut::from_column_major_slice_mut(s, n, n);
+    let ok = llt::factor::cholesky_in_place(
+        a.as_mut(),
+        Default::default(),
+        Par::Seq,
+        MemStack::new(stack),
+        Default::default(),
+    )
+    .is_ok();
+    if !ok {
+        return false;
+    }
+    let b = MatMut::from_column_major_slice_mut(rhs, n, 1);
+    llt::solve::solve_in_place(a.as_ref(), b, Par::Seq, MemStack::new(stack));
+    rhs.iter().all(|v| v.is_finite())
+}
+
+/// Scratch memory for [`cholesky_solve`] on an n×n system.
+pub(crate) fn cholesky_scratch(n: usize) -> MemBuffer {
+    MemBuffer::new(
+        llt::factor::cholesky_in_place_scratch::<f64>(n, Par::Seq, Default::default())
+            .or(llt::solve::solve_in_place_scratch::<f64>(n, 1, Par::Seq)),
+    )
+}
+
+/// The state being optimised.
+#[derive(Clone)]
+struct State {
+    poses: Vec<Rigid3>,
+    local: Vec<f64>,
+    global: Vec<f64>,
+    points: Vec<Vector3<f64>>,
+}
+
+/// ½·Σ ρ(w·|r|²) over the observations, in fixed-order chunks; `None` if an observation that
+/// counts (positive weight, `active`) cannot be projected.
+fn total_cost<M: CameraModel>(p: &Problem<M>, active: &[bool], l: Loss) -> Option<f64> {
+    let parts: Vec<Option<f64>> = p
+        .observations
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let mut sum = 0.0;
+            for (i, o) in chunk.iter().enumerate() {
+                if o.weight == 0.0 || !active[k * CHUNK + i] {
+                    continue;
+                }
+                let r = p.residual(o)?;
+                sum += loss(l, o.weight * r.norm_squared()).0;
+            }
+            Some(sum)
+        })
+        .collect();
+    let mut total = 0.0;
+    for part in parts {
+        total += part?;
+    }
+    Some(0.5 * total)
+}
+
+/// Adjusts `problem` in place by Levenberg–Marquardt.
+///
+/// Observations whose projection is undefined at the start (behind the camera, outside the
+/// distortion's valid region) are left out and counted in the summary.
+///
+/// # Errors
+/// An invalid problem or configuration. A solve that stops without converging is not an error:
+/// see [`AdjustSummary::termination`].
+pub fn bundle_adjust<M: CameraModel>(
+    problem: &mut Problem<M>,
+    config: &AdjustConfig,
+) -> Result<AdjustSummary, AdjustError> {
+    config.validate()?;
+    problem.validate()?;
+    let dims = Dims::of(problem);
+    if dims.dc > 32 || dims.dg > 32 {
+        return Err(AdjustError::Invalid(
+            "at most 32 shared and 26 per-camera intrinsics are supported".into(),
+        ));
+    }
+    let inc = Incidence::new(problem);
+    let n_obs = problem.observations.len();
+    let n_pts = problem.points.len();
+    let obs_camera: Vec<usize> = problem.observations.iter().map(|o| o.camera).collect();
+    let pinned = pinned_indices(problem, dims);
+    let mut jac = vec![0.0; n_obs * dims.stride];
+    let mut nrm = Normal::new(dims, n_pts, n_obs);
+    let mut vinv = vec![Matrix3::zeros(); n_pts];
+    let mut s = vec![0.0; dims.n_r * dims.n_r];
+    let mut rhs = vec![0.0; dims.n_r];
+    let mut dp = vec![Vector3::zeros(); n_pts];
+    let mut stack = cholesky_scratch(dims.n_r);
+
+    // Observations that can be projected at the start.
+    let active: Vec<bool> = problem
+        .observations
+        .par_iter()
+        .map(|o| problem.residual(o).is_some())
+        .collect();
+    let dropped = active
+        .iter()
+        .zip(&problem.observations)
+        .filter(|(a, o)| !**a && o.weight > 0.0)
+        .count();
+    let Some(initial_cost) = total_cost(problem, &active, config.loss) else {
+        return Err(AdjustError::Invalid("cost undefined at the start".into()));
+    };
+    let mut cost = initial_cost;
+    let mut radius = config.initial_trust_radius;
+    let mut nu = 2.0;
+    let mut iterations = 0;
+    let mut successful = 0;
+    let mut termination = Termination::MaxIterations;
+    let mut relinearise = true;
+    let mut max_gradient = f64::INFINITY;
+    let mut backup = State {
+        poses: problem.cam_from_world.clone(),
+        local: problem.local.clone(),
+        global: problem.global.clone(),
+        points: problem.points.clone(),
+    };
+
+    while iterations < config.max_iterations {
+        if relinearise {
+            let p: &Problem<M> = problem;
+            jac.par_chunks_mut(dims.stride)
+                .enumerate()
+                .for_each(|(o, rec)| {
+                    if active[o] {
+                        linearise(p, dims, o, config.loss, rec);
+                    } else {
+                        rec.fill(0.0);
+                    }
+                });
+            nrm.build(dims, &inc, &jac);
+            max_gradient = gradient_max_norm(&nrm, &pinned, dims);
+            if max_gradient <= config.gradient_tolerance {
+                termination = Termination::Converged;
+                break;
+            }
+            relinearise = false;
+        }
+        iterations += 1;
+        let lambda = 1.0 / radius;
+        let solved = assemble_reduced(
+            dims,
+            &inc,
+            &obs_camera,
+            &nrm,
+            lambda,
+            &pinned,
+            &mut vinv,
+            &mut s,
+            &mut rhs,
+        ) && cholesky_solve(&mut s, dims.n_r, &mut rhs, &mut stack);
+        let step = if solved {
+            back_substitute(dims, &inc, &obs_camera, &nrm, &vinv, &rhs, &mut dp);
+            Some(())
+        } else {
+            None
+        };
+        let accepted = step.and_then(|()| {
+            let predicted = predicted_decrease(dims, problem, &active, &jac, &rhs, &dp);
+            if !(predicted > 0.0) {
+                return None;
+            }
+            let step_norm = step_norm(&rhs, &dp);
+            let x_norm = state_norm(problem);
+            if step_norm <= config.parameter_tolerance * (x_norm + config.parameter_tolerance) {
+                termination = Termination::Converged;
+                return Some((0.0, predicted, true));
+            }
+            save_state(problem, &mut backup);
+            apply_step(problem, dims, &pinned, &rhs, &dp);
+            match total_cost(problem, &active, config.loss) {
+                Some(new_cost) if new_cost.is_finite() => {
+                    let rho = (cost - new_cost) / predicted;
+                    if rho > MIN_RELATIVE_DECREASE {
+                        Some((new_cost, rho, false))
+                    } else {
+                        restore_state(problem, &backup);
+                        None
+                    }
+                }
+                _ => {
+                    restore_state(problem, &backup);
+                    None
+                }
+            }
+        });
+        match accepted {
+            Some((_, _, true)) => break,
+            Some((new_cost, rho, false)) => {
+                successful += 1;
+                let change = cost - new_cost;
+                cost = new_cost;
+                radius =
+                    (radius / (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3))).min(MAX_RADIUS);
+                nu = 2.0;
+                relinearise = true;
+                if change <= config.function_tolerance * cost.max(f64::MIN_POSITIVE) {
+                    termination = Termination::Converged;
+                    break;
+                }
+            }
+            None => {
+                radius /= nu;
+                nu *= 2.0;
+                if radius < MIN_RADIUS {
+                    termination = Termination::NoProgress;
+                    break;
+                }
+            }
+        }
+    }
+    let used = active
+        .iter()
+        .zip(&problem.observations)
+        .filter(|(a, o)| **a && o.weight > 0.0)
+        .count();
+    Ok(AdjustSummary {
+        initial_cost,
+        final_cost: cost,
+        iterations,
+        successful_steps: successful,
+        termination,
+        observations_used: used,
+        observations_dropped: dropped,
+        max_gradient,
+    })
+}
+
+fn gradient_max_norm(nrm: &Normal, pinned: &[usize], dims: Dims) -> f64 {
+    let mut m: f64 = 0.0;
+    let reduced = nrm.bg.iter().chain(nrm.bc.iter()).enumerate();
+    for (k, v) in reduced {
+        if k < dims.n_r && pinned.binary_search(&k).is_err() {
+            m = m.max(v.abs());
+        }
+    }
+    for b in &nrm.bp {
+        m = m.max(b.amax());
+    }
+    m
+}
+
+/// `δp = (V + λD)⁻¹ (−b_p − Wᵀ δc)` for every point.
+fn back_substitute(
+    dims: Dims,
+    inc: &Incidence,
+    obs_camera: &[usize],
+    nrm: &Normal,
+    vinv: &[Matrix3<f64>],
+    dc_sol: &[f64],
+    dp: &mut [Vector3<f64>],
+) {
+    let Dims { dg, dc, .. } = dims;
+    dp.par_iter_mut().enumerate().for_each(|(p, d)| {
+        let mut r = -nrm.bp[p];
+        let wg = &nrm.wg[p * dg * 3..(p + 1) * dg * 3];
+        for a in 0..dg {
+            for k in 0..3 {
+                r[k] -= wg[a * 3 + k] * dc_sol[a];
+            }
+        }
+        for &o in inc.of_point(p) {
+            let wo = &nrm.wo[o * dc * 3..(o + 1) * dc * 3];
+            let x = &dc_sol[dg + obs_camera[o] * dc..dg + (obs_camera[o] + 1) * dc];
+            for a in 0..dc {
+                for k in 0..3 {
+                    r[k] -= wo[a * 3 + k] * x[a];
+                }
+            }
+        }
+        *d = vinv[p] * r;
+    });
+}
+
+/// `½|r|² − ½|r + Jδ|²` of the linearised (IRLS-weighted) model.
+fn predicted_decrease<M: CameraModel>(
+    dims: Dims,
+    problem: &Problem<M>,
+    active: &[bool],
+    jac: &[f64],
+    sol: &[f64],
+    dp: &[Vector3<f64>],
+) -> f64 {
+    let Dims { dg, dc, stride, .. } = dims;
+    let parts: Vec<f64> = jac
+        .par_chunks(stride * CHUNK)
+        .enumerate()
+        .map(|(k, chunk)| {
+            let mut sum = 0.0;
+            for (i, rec) in chunk.chunks(stride).enumerate() {
+                let o = k * CHUNK + i;
+                if !active[o] {
+                    continue;
+                }
+                let obs = &problem.observations[o];
+                let rec = view(rec, dims);
+                let x = &sol[dg + obs.camera * dc..dg + (obs.camera + 1) * dc];
+                let d = &dp[obs.point];
+                for row in 0..2 {
+                    let mut jd = 0.0;
+                    for c in 0..3 {
+                        jd += rec.jp[row * 3 + c] * d[c];
+                    }
+                    for c in 0..dc {
+                        jd += rec.jc[row * dc + c] * x[c];
+                    }
+                    for c in 0..dg {
+                        jd += rec.jg[row * dg + c] * sol[c];
+                    }
+                    let r = rec.r[row];
+                    sum += 0.5 * (r * r - (r + jd) * (r + jd));
+                }
+            }
+            sum
+        })
+        .collect();
+    parts.iter().sum()
+}
+
+fn step_norm(sol: &[f64], dp: &[Vector3<f64>]) -> f64 {
+    (sol.iter().map(|v| v * v).sum::<f64>() + dp.iter().map(|d| d.norm_squared()).sum::<f64>())
+        .sqrt()
+}
+
+fn state_norm<M: CameraModel>(p: &Problem<M>) -> f64 {
+    let poses: f64 = p
+        .cam_from_world
+        .iter()
+        .map(|c| c.translation.vector.norm_squared() + c.rotation.scaled_axis().norm_squared())
+        .sum();
+    let pts: f64 = p.points.iter().map(|x| x.norm_squared()).sum();
+    let intr: f64 = p.local.iter().chain(&p.global).map(|v| v * v).sum();
+    (poses + pts + intr).sqrt()
+}
+
+fn save_state<M: CameraModel>(p: &Problem<M>, s: &mut State) {
+    s.poses.clone_from(&p.cam_from_world);
+    s.local.clone_from(&p.local);
+    s.global.clone_from(&p.global);
+    s.points.clone_from(&p.points);
+}
+
+fn restore_state<M: CameraModel>(p: &mut Problem<M>, s: &State) {
+    p.cam_from_world.clone_from(&s.poses);
+    p.local.clone_from(&s.local);
+    p.global.clone_from(&s.global);
+    p.points.clone_from(&s.points);
+}
+
+fn apply_step<M: CameraModel>(
+    p: &mut Problem<M>,
+    dims: Dims,
+    pinned: &[usize],
+    sol: &[f64],
+    dp: &[Vector3<f64>],
+) {
+    let Dims { dg, dc, nl, .. } = dims;
+    for (g, v) in p.global.iter_mut().enumerate() {
+        if pinned.binary_search(&g).is_err() {
+            *v += sol[g];
+        }
+    }
+    for (c, pose) in p.cam_from_world.iter_mut().enumerate() {
+        let x = &sol[dg + c * dc..dg + (c + 1) * dc];
+        *pose = retract(pose, &Vector6::from_column_slice(&x[..6]));
+        for k in 0..nl {
+            p.local[c * nl + k] += x[6 + k];
+        }
+    }
+    p.points
+        .par_iter_mut()
+        .zip(dp.par_iter())
+        .for_each(|(x, d)| *x += d);
+}
