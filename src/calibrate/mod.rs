@@ -5,5 +5,7 @@
 
 pub mod eccentricity;
 pub mod matching;
+pub mod pipeline;
 pub mod refine;
+pub mod selection;
 pub mod views;

@@ -77,7 +77,7 @@ pub struct Prepared {
 
 /// Simulated detections of a truth frame: fitted ellipses with noise, and their (id, view
 /// index).
-fn detections(
+pub(crate) fn detections(
     truth: &Truth,
     frame: usize,
     scenario: &Scenario,

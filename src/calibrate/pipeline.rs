@@ -1,0 +1,646 @@
+//! The calibration loop (paper, "Summary of Methods", steps 1–7):
+//!
+//! 1. SfM model (poses, features, an EXIF-like camera);
+//! 2. Algorithm 1 steps 1–3: robust `F` per overlapping pair, robust triangulation of the
+//!    feature tracks ([`super::refine`]);
+//! 3. Algorithm 1 step 4: adjustment on the inlier features only, refining the poses and a
+//!    first c, u0, v0, k1, k2;
+//! 4. the detected ellipses, undistorted with the current intrinsics;
+//! 5. Algorithm 2 (matching) and Algorithm 3 (centre correction) ([`super::matching`]);
+//! 6. the free-network self-calibrating adjustment of the corrected target centres with the
+//!    stepwise selection of distortion terms ([`super::selection`]);
+//! 7. back to 4 with the new poses and intrinsics until the set of matches does not change
+//!    between two iterations (capped, logged).
+
+use std::collections::HashMap;
+
+use nalgebra::{Vector2, Vector3};
+use serde::Serialize;
+
+use super::matching::{MatchConfig, Matching, match_targets};
+use super::refine::{Algorithm1, PairGeometry, RefineConfig, RefineError, algorithm1};
+use super::selection::{Selected, SelectionConfig, SelectionStep, select_terms};
+use super::views::{FrameCamera, TargetObservation, observations};
+use crate::adjust::{
+    AdjustConfig, AdjustError, AdjustSummary, BrownModel, Loss, Observation, Problem,
+    free_network_datum,
+};
+use crate::camera::{Intrinsics, Term};
+use crate::geometry::Rigid3;
+use crate::geometry::conic::Ellipse;
+use crate::geometry::epipolar::fundamental_from_cameras;
+use crate::io::colmap::{ImageId, Reconstruction};
+
+/// How to calibrate.
+#[derive(Clone, Debug)]
+pub struct CalibrateConfig {
+    /// Algorithm 1 settings.
+    pub refine: RefineConfig,
+    /// Algorithm 2/3 settings.
+    pub matching: MatchConfig,
+    /// Term selection.
+    pub selection: SelectionConfig,
+    /// Solver settings of the target adjustment.
+    pub adjust: AdjustConfig,
+    /// Run Algorithm 1 step 4 (feature adjustment) before matching.
+    pub feature_adjustment: bool,
+    /// Cap on matching/adjustment iterations.
+    pub max_iterations: usize,
+    /// Targets need this many corrected views to enter the adjustment.
+    pub min_views: usize,
+    /// Fewer frames than this is an error.
+    pub min_frames: usize,
+    /// Fewer adjusted targets than this is an error.
+    pub min_targets: usize,
+}
+
+impl Default for CalibrateConfig {
+    fn default() -> Self {
+        CalibrateConfig {
+            refine: RefineConfig::default(),
+            matching: MatchConfig::default(),
+            selection: SelectionConfig::default(),
+            adjust: AdjustConfig {
+                function_tolerance: 1e-10,
+                ..AdjustConfig::default()
+            },
+            feature_adjustment: true,
+            max_iterations: 5,
+            min_views: 3,
+            min_frames: 8,
+            min_targets: 20,
+        }
+    }
+}
+
+/// Why a calibration failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CalibrateError {
+    /// Algorithm 1 could not run.
+    #[error(transparent)]
+    Refine(#[from] RefineError),
+    /// An adjustment could not run.
+    #[error(transparent)]
+    Adjust(#[from] AdjustError),
+    /// Not enough data for a calibration.
+    #[error("{what}: {found} found, at least {required} needed")]
+    TooFew {
+        /// What is missing.
+        what: &'static str,
+        /// How many there are.
+        found: usize,
+        /// How many are needed.
+        required: usize,
+    },
+    /// The detections do not correspond to the model's frames.
+    #[error("{0}")]
+    Input(String),
+}
+
+/// One target observation of the final adjustment.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct CalibrationObservation {
+    /// Frame index (model order).
+    pub frame: usize,
+    /// Target index in [`Calibration::points`].
+    pub target: usize,
+    /// Observed pixel: Algorithm 3's centre in observed (distorted) pixels.
+    pub uv: [f64; 2],
+    /// Residual `measured − projected` (px).
+    pub residual: [f64; 2],
+}
+
+/// One iteration of the loop.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct LoopRecord {
+    /// 1-based iteration.
+    pub iteration: usize,
+    /// Matched targets.
+    pub tracks: usize,
+    /// Their views.
+    pub views: usize,
+    /// Whether the matches differ from the previous iteration's.
+    pub changed: bool,
+    /// Targets and observations that entered the adjustment.
+    pub adjusted_targets: usize,
+    /// Observations that entered the adjustment.
+    pub adjusted_observations: usize,
+    /// σ0 of the adjustment (px).
+    pub sigma0: f64,
+    /// Terms selected.
+    pub terms: Vec<Term>,
+}
+
+/// A finished calibration.
+#[derive(Clone, Debug)]
+pub struct Calibration {
+    /// The estimated intrinsics.
+    pub intrinsics: Intrinsics,
+    /// The terms estimated.
+    pub terms: Vec<Term>,
+    /// Standard deviations of the ten intrinsics (0 for fixed ones).
+    pub std_dev: [f64; 10],
+    /// Covariance of the ten intrinsics (σ0²·Q).
+    pub covariance: nalgebra::DMatrix<f64>,
+    /// A-posteriori σ0 (px).
+    pub sigma0: f64,
+    /// Redundancy of the final adjustment.
+    pub redundancy: usize,
+    /// RMS of the residuals per coordinate (px).
+    pub residual_rms_px: f64,
+    /// Frame names (model order).
+    pub frame_names: Vec<String>,
+    /// Adjusted poses (model order), on the inner-constraint datum.
+    pub cam_from_world: Vec<Rigid3>,
+    /// Adjusted target centres.
+    pub points: Vec<Vector3<f64>>,
+    /// The final adjustment's observations with residuals.
+    pub observations: Vec<CalibrationObservation>,
+    /// The selection decisions of the final adjustment.
+    pub selection: Vec<SelectionStep>,
+    /// Radial residuals `(r, v_r)` of the c, u0, v0-only model (final iteration).
+    pub radial_base: Vec<(f64, f64)>,
+    /// The loop's iterations.
+    pub iterations: Vec<LoopRecord>,
+    /// Whether the matches stopped changing before the cap.
+    pub converged: bool,
+    /// Algorithm 1 step 4's solver summary.
+    pub feature_adjustment: Option<AdjustSummary>,
+    /// The final adjustment's solver summary.
+    pub summary: AdjustSummary,
+    /// Warnings for the user (weak geometry, unconverged loop).
+    pub warnings: Vec<String>,
+    /// The SfM camera the loop started from.
+    pub initial: Intrinsics,
+}
+
+/// The model frames' detections: `detections[k]` are the ellipses (observed pixels) of the
+/// k-th registered image of `model` in image-id order.
+#[derive(Clone, Debug)]
+pub struct CalibrationInput<'a> {
+    /// The SfM model.
+    pub model: &'a Reconstruction,
+    /// Per registered image (image-id order), its detected ellipses.
+    pub detections: &'a [Vec<Ellipse>],
+    /// Frame size (px).
+    pub image_size: (u32, u32),
+}
+
+/// Calibrates a device from an SfM model and the detections in its frames.
+///
+/// # Errors
+/// [`CalibrateError`] for too few frames or targets, inconsistent input, or an adjustment that
+/// cannot run.
+pub fn calibrate(
+    input: &CalibrationInput<'_>,
+    config: &CalibrateConfig,
+    log: &dyn Fn(&str),
+) -> Result<Calibration, CalibrateError> {
+    let n_frames = input.model.images.len();
+    if n_frames < config.min_frames {
+        return Err(CalibrateError::TooFew {
+            what: "registered frames in the SfM model",
+            found: n_frames,
+            required: config.min_frames,
+        });
+    }
+    if input.detections.len() != n_frames {
+        return Err(CalibrateError::Input(format!(
+            "{} detection lists for {n_frames} registered frames",
+            input.detections.len()
+        )));
+    }
+    // Steps 1–2.
+    let a1 = algorithm1(input.model, None, &config.refine)?;
+    let initial = a1.frames[0].camera.intrinsics;
+    log(&format!(
+        "Algorithm 1: {} frames, {} overlapping pairs, {:.1} % of feature observations inliers, reprojection σ {:.2} px",
+        a1.frames.len(),
+        a1.pairs.len(),
+        100.0 * a1.track_inlier_fraction(),
+        a1.reprojection_sigma
+    ));
+    let mut cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
+    let mut warnings = Vec::new();
+    // Step 3.
+    let feature_adjustment = if config.feature_adjustment {
+        let (summary, intrinsics, poses) = adjust_features(input.model, &a1, &cameras, config)?;
+        log(&format!(
+            "Algorithm 1 step 4: adjusted {} inlier feature observations, RMS {:.3} → {:.3} px; c {:.1}, u0 {:.1}, v0 {:.1}, k1 {:.4}, k2 {:.4}",
+            summary.observations_used,
+            (2.0 * summary.initial_cost / (2.0 * summary.observations_used as f64)).sqrt(),
+            (2.0 * summary.final_cost / (2.0 * summary.observations_used as f64)).sqrt(),
+            intrinsics.c,
+            intrinsics.u0,
+            intrinsics.v0,
+            intrinsics.k1,
+            intrinsics.k2
+        ));
+        for (cam, pose) in cameras.iter_mut().zip(poses) {
+            *cam = FrameCamera {
+                intrinsics,
+                cam_from_world: pose,
+            };
+        }
+        Some(summary)
+    } else {
+        None
+    };
+    let mut pairs: Vec<PairGeometry> = a1.pairs.clone();
+    if config.feature_adjustment {
+        refresh_pairs(&mut pairs, &cameras);
+    }
+
+    let mut previous: Option<Vec<Vec<(usize, usize)>>> = None;
+    let mut seen: Vec<Vec<Vec<(usize, usize)>>> = Vec::new();
+    let mut iterations = Vec::new();
+    let mut last: Option<(Selected, Vec<(usize, usize)>)> = None;
+    let mut converged = false;
+    for iteration in 1..=config.max_iterations {
+        // Step 4.
+        let obs: Vec<Vec<TargetObservation>> = cameras
+            .iter()
+            .zip(input.detections)
+            .enumerate()
+            .map(|(k, (cam, det))| observations(k, cam, det))
+            .collect();
+        // Step 5.
+        let m = match_targets(
+            &cameras,
+            &obs,
+            &pairs,
+            input.image_size,
+            a1.reprojection_sigma,
+            &config.matching,
+        );
+        let signature = match_signature(&m);
+        let changed = previous.as_ref() != Some(&signature);
+        let cycle = changed && seen.contains(&signature);
+        let views: usize = m.tracks.iter().map(|t| t.views.len()).sum();
+        if !changed {
+            log(&format!(
+                "iteration {iteration}: {} targets, {views} views — the matches did not change: done",
+                m.tracks.len()
+            ));
+            iterations.push(LoopRecord {
+                iteration,
+                tracks: m.tracks.len(),
+                views,
+                changed,
+                adjusted_targets: 0,
+                adjusted_observations: 0,
+                sigma0: f64::NAN,
+                terms: Vec::new(),
+            });
+            converged = true;
+            break;
+        }
+        if cycle {
+            let msg = format!(
+                "iteration {iteration}: the matches returned to an earlier iteration's ({} targets, {views} views): they alternate, stopping",
+                m.tracks.len()
+            );
+            log(&msg);
+            warnings.push(msg);
+            iterations.push(LoopRecord {
+                iteration,
+                tracks: m.tracks.len(),
+                views,
+                changed,
+                adjusted_targets: 0,
+                adjusted_observations: 0,
+                sigma0: f64::NAN,
+                terms: Vec::new(),
+            });
+            converged = true;
+            break;
+        }
+        seen.push(signature.clone());
+        previous = Some(signature);
+        // Step 6.
+        let (problem, keys) = target_problem(&m, &cameras, config)?;
+        let reference = problem.points.clone();
+        let mut selected = select_terms(&problem, &config.selection, &config.adjust, log)?;
+        free_network_datum(&mut selected.problem, &reference)?;
+        let intrinsics = intrinsics_of(&selected.problem);
+        for (cam, pose) in cameras.iter_mut().zip(&selected.problem.cam_from_world) {
+            *cam = FrameCamera {
+                intrinsics,
+                cam_from_world: *pose,
+            };
+        }
+        refresh_pairs(&mut pairs, &cameras);
+        log(&format!(
+            "iteration {iteration}: {} targets matched ({views} views), {} adjusted with {} observations; σ0 {:.4} px; terms {}",
+            m.tracks.len(),
+            selected.problem.points.len(),
+            selected.precision.observations,
+            selected.precision.sigma0,
+            selected
+                .terms
+                .iter()
+                .map(|t| t.name())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+        iterations.push(LoopRecord {
+            iteration,
+            tracks: m.tracks.len(),
+            views,
+            changed,
+            adjusted_targets: selected.problem.points.len(),
+            adjusted_observations: selected.precision.observations,
+            sigma0: selected.precision.sigma0,
+            terms: selected.terms.clone(),
+        });
+        last = Some((selected, keys));
+    }
+    if !converged {
+        let msg = format!(
+            "the matches still changed after {} iterations; the last adjustment is reported",
+            config.max_iterations
+        );
+        log(&msg);
+        warnings.push(msg);
+    }
+    let Some((selected, keys)) = last else {
+        return Err(CalibrateError::Input("no iteration ran".into()));
+    };
+    finish(
+        selected,
+        &keys,
+        &a1,
+        iterations,
+        converged,
+        feature_adjustment,
+        warnings,
+        initial,
+    )
+}
+
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    selected: Selected,
+    keys: &[(usize, usize)],
+    a1: &Algorithm1,
+    iterations: Vec<LoopRecord>,
+    converged: bool,
+    feature_adjustment: Option<AdjustSummary>,
+    mut warnings: Vec<String>,
+    initial: Intrinsics,
+) -> Result<Calibration, CalibrateError> {
+    let p = &selected.problem;
+    let cov = selected.precision.global_covariance.clone();
+    let mut std_dev = [0.0; 10];
+    for (k, s) in selected.precision.global_std().iter().enumerate() {
+        std_dev[k] = *s;
+    }
+    let observations: Vec<CalibrationObservation> = p
+        .observations
+        .iter()
+        .zip(keys)
+        .filter_map(|(o, _)| {
+            let r = -p.residual(o)?;
+            Some(CalibrationObservation {
+                frame: o.camera,
+                target: o.point,
+                uv: [o.uv.x, o.uv.y],
+                residual: [r.x, r.y],
+            })
+        })
+        .collect();
+    let ss: f64 = observations
+        .iter()
+        .map(|o| o.residual[0].powi(2) + o.residual[1].powi(2))
+        .sum();
+    let residual_rms_px = (ss / (2.0 * observations.len().max(1) as f64)).sqrt();
+    let intrinsics = intrinsics_of(p);
+    warnings.extend(geometry_warnings(&selected, p));
+    Ok(Calibration {
+        intrinsics,
+        terms: selected.terms.clone(),
+        std_dev,
+        covariance: cov,
+        sigma0: selected.precision.sigma0,
+        redundancy: selected.precision.redundancy,
+        residual_rms_px,
+        frame_names: a1.frames.iter().map(|f| f.name.clone()).collect(),
+        cam_from_world: p.cam_from_world.clone(),
+        points: p.points.clone(),
+        observations,
+        selection: selected.steps.clone(),
+        radial_base: selected.radial_base.clone(),
+        iterations,
+        converged,
+        feature_adjustment,
+        summary: selected.summary,
+        warnings,
+        initial,
+    })
+}
+
+/// Warnings about projective coupling: high correlations of c with the pose depth (a planar
+/// field without roll diversity) show as |ρ(u0, v0 or c, …)| near 1 among the intrinsics.
+fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String> {
+    let corr = selected.precision.global_correlation();
+    let mut out = Vec::new();
+    for i in 0..10 {
+        for j in 0..i {
+            if corr[(i, j)].abs() > 0.98 {
+                out.push(format!(
+                    "correlation of {} and {} is {:.3}: the network does not separate them (vary the roll, portrait and landscape, and the depth)",
+                    Term::ALL[j].name(),
+                    Term::ALL[i].name(),
+                    corr[(i, j)]
+                ));
+            }
+        }
+    }
+    // Roll diversity: the spread of the cameras' roll about their viewing axis.
+    let rolls: Vec<f64> = p
+        .cam_from_world
+        .iter()
+        .map(|pose| {
+            let r = pose.rotation.to_rotation_matrix();
+            // Image x axis in world coordinates.
+            let x = r.matrix().row(0).transpose();
+            x.z.atan2(x.x.hypot(x.y))
+        })
+        .collect();
+    let spread = rolls.iter().fold(0.0f64, |m, r| m.max(r.abs()));
+    if spread < 0.3 {
+        out.push(format!(
+            "every frame has about the same roll (largest image-x tilt {:.0}°): without portrait and landscape frames the principal point couples with the poses",
+            spread.to_degrees()
+        ));
+    }
+    out
+}
+
+fn intrinsics_of(p: &Problem<BrownModel>) -> Intrinsics {
+    let mut a = [0.0; 10];
+    a.copy_from_slice(&p.global[..10]);
+    Intrinsics::from_array(a)
+}
+
+/// F of every pair from the current cameras (after an adjustment the poses are the better
+/// source); σ stays Algorithm 1's.
+fn refresh_pairs(pairs: &mut [PairGeometry], cameras: &[FrameCamera]) {
+    for pair in pairs {
+        let (a, b) = (&cameras[pair.a], &cameras[pair.b]);
+        if let Some(f) = fundamental_from_cameras(&a.p(), &a.centre(), &b.p()) {
+            let n = f.norm();
+            if n > 0.0 && n.is_finite() {
+                pair.f = f / n;
+            }
+        }
+    }
+}
+
+/// The matches as sorted lists of (frame, observation), for comparing iterations.
+fn match_signature(m: &Matching) -> Vec<Vec<(usize, usize)>> {
+    let mut s: Vec<Vec<(usize, usize)>> = m
+        .tracks
+        .iter()
+        .map(|t| {
+            let mut v: Vec<(usize, usize)> = t.views.iter().map(|v| (v.frame, v.obs)).collect();
+            v.sort_unstable();
+            v
+        })
+        .collect();
+    s.sort();
+    s
+}
+
+/// The target adjustment: every track with enough corrected views, observed at Algorithm 3's
+/// centre mapped back into observed pixels.
+fn target_problem(
+    m: &Matching,
+    cameras: &[FrameCamera],
+    config: &CalibrateConfig,
+) -> Result<(Problem<BrownModel>, Vec<(usize, usize)>), CalibrateError> {
+    let mut points = Vec::new();
+    let mut observations = Vec::new();
+    let mut keys = Vec::new();
+    for track in &m.tracks {
+        let views: Vec<(usize, usize, Vector2<f64>)> = track
+            .views
+            .iter()
+            .filter_map(|v| {
+                let c = v.corrected?;
+                let uv = cameras[v.frame].distort(&c)?;
+                Some((v.frame, v.obs, uv))
+            })
+            .collect();
+        if views.len() < config.min_views {
+            continue;
+        }
+        let id = points.len();
+        points.push(track.point.coords);
+        for (frame, o, uv) in views {
+            observations.push(Observation {
+                camera: frame,
+                point: id,
+                uv,
+                weight: 1.0,
+            });
+            keys.push((frame, o));
+        }
+    }
+    if points.len() < config.min_targets {
+        return Err(CalibrateError::TooFew {
+            what: "targets with enough corrected views",
+            found: points.len(),
+            required: config.min_targets,
+        });
+    }
+    let intrinsics = cameras[0].intrinsics;
+    let problem = Problem::new(
+        BrownModel,
+        cameras.iter().map(|c| c.cam_from_world).collect(),
+        Vec::new(),
+        intrinsics.to_array().to_vec(),
+        points,
+        observations,
+    )?;
+    Ok((problem, keys))
+}
+
+/// Algorithm 1 step 4: the feature tracks' inlier observations adjusted with c, u0, v0, k1, k2
+/// free (Huber loss at 3σ of Algorithm 1's reprojection σ), free network.
+fn adjust_features(
+    model: &Reconstruction,
+    a1: &Algorithm1,
+    cameras: &[FrameCamera],
+    config: &CalibrateConfig,
+) -> Result<(AdjustSummary, Intrinsics, Vec<Rigid3>), CalibrateError> {
+    let index_of: HashMap<ImageId, usize> = a1
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| (f.image_id, k))
+        .collect();
+    let mut points = Vec::new();
+    let mut observations = Vec::new();
+    for track in &a1.tracks {
+        let Some(p3) = model.points3d.get(&track.point3d_id) else {
+            continue;
+        };
+        let elems: Vec<(usize, Vector2<f64>)> = p3
+            .track
+            .iter()
+            .zip(&track.inliers)
+            .filter(|(_, inlier)| **inlier)
+            .filter_map(|(e, _)| {
+                let frame = *index_of.get(&e.image_id)?;
+                let uv = model.images[&e.image_id]
+                    .points2d
+                    .get(e.point2d_idx as usize)?
+                    .uv;
+                Some((frame, uv))
+            })
+            .collect();
+        if elems.len() < 3 {
+            continue;
+        }
+        let id = points.len();
+        points.push(track.point.coords);
+        for (frame, uv) in elems {
+            observations.push(Observation {
+                camera: frame,
+                point: id,
+                uv,
+                weight: 1.0,
+            });
+        }
+    }
+    if points.len() < 7 {
+        return Err(CalibrateError::TooFew {
+            what: "feature tracks with three or more inlier views",
+            found: points.len(),
+            required: 7,
+        });
+    }
+    let intrinsics = cameras[0].intrinsics;
+    let mut problem = Problem::new(
+        BrownModel,
+        cameras.iter().map(|c| c.cam_from_world).collect(),
+        Vec::new(),
+        intrinsics.to_array().to_vec(),
+        points,
+        observations,
+    )?;
+    problem.fixed.global = [Term::K3, Term::P1, Term::P2, Term::B1, Term::B2]
+        .iter()
+        .map(|t| t.index())
+        .collect();
+    let reference = problem.points.clone();
+    let adjust = AdjustConfig {
+        loss: Loss::Huber(3.0 * a1.reprojection_sigma.max(0.1)),
+        ..config.adjust
+    };
+    let summary = crate::adjust::bundle_adjust(&mut problem, &adjust)?;
+    free_network_datum(&mut problem, &reference)?;
+    Ok((summary, intrinsics_of(&problem), problem.cam_from_world))
+}

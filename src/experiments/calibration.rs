@@ -1,0 +1,183 @@
+//! The calibration loop scored against the simulator's truth: intrinsics against the preset,
+//! the distortion model's largest difference over the frame, the selected terms against the
+//! terms the truth has above 0.1 px effect.
+//!
+//! Like [`super::matching`], a scenario starts from the SfM stand-in's model and simulated
+//! detections (the truth's fitted ellipses plus the detector's noise) rather than rendered
+//! pixels; `pipemeasure calibrate` on rendered frames is what made `calibrations/*.json`.
+
+use nalgebra::Vector2;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+use super::matching::{Scenario, detections};
+use crate::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, calibrate};
+use crate::camera::{Intrinsics, Term};
+use crate::geometry::conic::Ellipse;
+use crate::io::colmap::Reconstruction;
+use crate::sim::simulate::lab_geometry;
+use crate::sim::truth::Truth;
+
+/// A scenario ready to calibrate: the truth, the model, the detections per model frame.
+#[derive(Clone, Debug)]
+pub struct CalibrationScenario {
+    /// The truth.
+    pub truth: Truth,
+    /// The SfM stand-in's model.
+    pub model: Reconstruction,
+    /// Per registered image (image-id order), simulated detections (observed pixels).
+    pub detections: Vec<Vec<Ellipse>>,
+}
+
+/// Builds a calibration scenario.
+///
+/// # Errors
+/// A message for bad options or a frame missing from the truth.
+pub fn prepare(scenario: &Scenario) -> Result<CalibrationScenario, String> {
+    let (truth, model) =
+        lab_geometry(&scenario.options, &scenario.lab).map_err(|e| e.to_string())?;
+    let mut rng = ChaCha8Rng::seed_from_u64(scenario.options.seed ^ 0x00DE_7EC7);
+    let mut out = Vec::new();
+    for image in model.images.values() {
+        let k = truth
+            .frames
+            .iter()
+            .position(|t| t.name == image.name)
+            .ok_or_else(|| format!("frame {} not in the truth", image.name))?;
+        out.push(detections(&truth, k, scenario, &mut rng).0);
+    }
+    Ok(CalibrationScenario {
+        truth,
+        model,
+        detections: out,
+    })
+}
+
+/// Runs the calibration on a scenario.
+///
+/// # Errors
+/// The calibration's error, as text.
+pub fn run(
+    s: &CalibrationScenario,
+    config: &CalibrateConfig,
+    log: &dyn Fn(&str),
+) -> Result<Calibration, String> {
+    let input = CalibrationInput {
+        model: &s.model,
+        detections: &s.detections,
+        image_size: (s.truth.camera.width, s.truth.camera.height),
+    };
+    calibrate(&input, config, log).map_err(|e| e.to_string())
+}
+
+/// A calibration compared with the truth.
+#[derive(Clone, Debug, Serialize)]
+pub struct CalibrationScore {
+    /// Per term: (name, truth, estimate, σ).
+    pub terms: Vec<(String, f64, f64, f64)>,
+    /// Largest difference of the distortion displacement over the frame (px).
+    pub max_distortion_difference_px: f64,
+    /// Terms selected.
+    pub selected: Vec<String>,
+    /// Terms the truth has with more than 0.1 px effect somewhere in the frame.
+    pub significant_truth_terms: Vec<String>,
+    /// σ0 (px).
+    pub sigma0: f64,
+    /// Residual RMS per coordinate (px).
+    pub residual_rms_px: f64,
+    /// Targets and observations adjusted.
+    pub targets: usize,
+    /// Observations adjusted.
+    pub observations: usize,
+    /// Loop iterations.
+    pub iterations: usize,
+}
+
+/// Grid of ideal normalised points covering the frame of `truth`'s camera (undistorted with
+/// the true model).
+fn frame_grid(truth: &Truth) -> Vec<Vector2<f64>> {
+    let cam = &truth.camera;
+    let (w, h) = (f64::from(cam.width), f64::from(cam.height));
+    let n = 40;
+    let mut out = Vec::new();
+    for i in 0..=n {
+        for j in 0..=n {
+            let uv = Vector2::new(
+                w * f64::from(i) / f64::from(n),
+                h * f64::from(j) / f64::from(n),
+            );
+            if let Ok(xy) = cam.intrinsics.ideal_from_pixel(&uv) {
+                out.push(xy);
+            }
+        }
+    }
+    out
+}
+
+/// The distortion displacement `c·(distort(x) − x)` of a model at ideal point `x` (px).
+fn displacement(i: &Intrinsics, x: &Vector2<f64>) -> Vector2<f64> {
+    i.c * (i.distort(x) - x)
+}
+
+/// Largest difference of the distortion displacement of two models over the frame (px).
+#[must_use]
+pub fn max_distortion_difference(truth: &Truth, estimate: &Intrinsics) -> f64 {
+    frame_grid(truth)
+        .iter()
+        .map(|x| (displacement(estimate, x) - displacement(&truth.camera.intrinsics, x)).norm())
+        .fold(0.0, f64::max)
+}
+
+/// Largest effect (px) of each distortion term of `i` over the frame of `truth`.
+fn term_effects(truth: &Truth, i: &Intrinsics) -> Vec<(Term, f64)> {
+    let grid = frame_grid(truth);
+    Term::ALL[3..]
+        .iter()
+        .map(|&t| {
+            let mut without = *i;
+            without.set(t, 0.0);
+            let effect = grid
+                .iter()
+                .map(|x| {
+                    let a = i.pixel_from_distorted(&i.distort(x));
+                    let b = without.pixel_from_distorted(&without.distort(x));
+                    (a - b).norm()
+                })
+                .fold(0.0, f64::max);
+            (t, effect)
+        })
+        .collect()
+}
+
+/// Scores a calibration against the truth.
+#[must_use]
+pub fn score(s: &CalibrationScenario, cal: &Calibration) -> CalibrationScore {
+    let truth = s.truth.camera.intrinsics;
+    let terms = Term::ALL
+        .iter()
+        .map(|&t| {
+            (
+                t.name().to_string(),
+                truth.get(t),
+                cal.intrinsics.get(t),
+                cal.std_dev[t.index()],
+            )
+        })
+        .collect();
+    CalibrationScore {
+        terms,
+        max_distortion_difference_px: max_distortion_difference(&s.truth, &cal.intrinsics),
+        selected: cal.terms.iter().map(|t| t.name().to_string()).collect(),
+        significant_truth_terms: term_effects(&s.truth, &truth)
+            .into_iter()
+            .filter(|(_, e)| *e > 0.1)
+            .map(|(t, _)| t.name().to_string())
+            .collect(),
+        sigma0: cal.sigma0,
+        residual_rms_px: cal.residual_rms_px,
+        targets: cal.points.len(),
+        observations: cal.observations.len(),
+        iterations: cal.iterations.len(),
+    }
+}
