@@ -44,5 +44,6 @@ pub mod experiments;
 pub mod geometry;
 pub mod io;
 pub mod profile;
+pub mod report;
 pub mod robust;
 pub mod sim;

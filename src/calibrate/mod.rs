@@ -3,6 +3,7 @@
 //! views), Algorithm 3 (`eccentricity`: the image of each target's true centre), on the
 //! frames' cameras and detections in undistorted pixel coordinates (`views`).
 
+pub mod checks;
 pub mod eccentricity;
 pub mod matching;
 pub mod pipeline;

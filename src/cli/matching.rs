@@ -10,6 +10,7 @@ use pipemeasure::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
 use pipemeasure::calibrate::views::{TargetObservation, observations};
 use pipemeasure::camera::Intrinsics;
 use pipemeasure::detect::{DetectConfig, Detector};
+use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::colmap::Reconstruction;
 use pipemeasure::io::frames::read_frame;
@@ -131,43 +132,60 @@ fn intrinsics_for(
     Ok(Some((camera.intrinsics, path.display().to_string())))
 }
 
-/// Detects the targets of every model frame, in parallel (one frame in memory per worker).
-fn detect_frames(
-    a1: &Algorithm1,
+/// Detects the targets of the named frames of `dir`, in parallel (one frame in memory per
+/// worker): per frame, the detected ellipses in observed pixels.
+pub(super) fn detect_named_frames(
     dir: &Path,
+    names: &[String],
     min_semi_minor: f64,
     quiet: bool,
-) -> Result<Vec<Vec<TargetObservation>>> {
+) -> Result<Vec<Vec<Ellipse>>> {
     let config = DetectConfig {
         min_semi_minor_px: min_semi_minor,
         ..DetectConfig::default()
     };
     Detector::new(config.clone())?;
-    let progress = bar(a1.frames.len() as u64, "detecting", quiet);
-    let result: Vec<Result<Vec<TargetObservation>>> = a1
-        .frames
+    let progress = bar(names.len() as u64, "detecting", quiet);
+    let result: Vec<Result<Vec<Ellipse>>> = names
         .par_iter()
-        .enumerate()
         .map_init(
             || Detector::new(config.clone()),
-            |detector, (k, frame)| {
+            |detector, name| {
                 let detector = detector.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
-                let path = dir.join(&frame.name);
-                let image = read_frame(&path)
-                    .with_context(|| format!("frame {} of the model", frame.name))?;
-                let ellipses: Vec<_> = detector
+                let path = dir.join(name);
+                let image =
+                    read_frame(&path).with_context(|| format!("frame {name} of the model"))?;
+                let ellipses: Vec<Ellipse> = detector
                     .detect(&image)
                     .ellipses
                     .iter()
                     .map(|e| e.ellipse())
                     .collect();
                 progress.inc(1);
-                Ok(observations(k, &frame.camera, &ellipses))
+                Ok(ellipses)
             },
         )
         .collect();
     progress.finish_and_clear();
     result.into_iter().collect()
+}
+
+/// Detects the targets of every model frame, in undistorted pixels of its camera.
+fn detect_frames(
+    a1: &Algorithm1,
+    dir: &Path,
+    min_semi_minor: f64,
+    quiet: bool,
+) -> Result<Vec<Vec<TargetObservation>>> {
+    let names: Vec<String> = a1.frames.iter().map(|f| f.name.clone()).collect();
+    let detected = detect_named_frames(dir, &names, min_semi_minor, quiet)?;
+    Ok(a1
+        .frames
+        .iter()
+        .zip(&detected)
+        .enumerate()
+        .map(|(k, (frame, ellipses))| observations(k, &frame.camera, ellipses))
+        .collect())
 }
 
 fn output(model: &Path, a1: &Algorithm1, obs: &[Vec<TargetObservation>], m: &Matching) -> MatchOut {

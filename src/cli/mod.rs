@@ -17,6 +17,7 @@ macro_rules! out {
     }};
 }
 
+mod calibrate;
 mod detect;
 mod matching;
 mod profile;
@@ -48,6 +49,9 @@ enum Command {
     Undistort(undistort::Args),
     /// Find circular targets and their best-fit ellipses in frames.
     Detect(detect::Args),
+    /// Calibrate a device from a lab video's frames into its profile (paper's calibration
+    /// loop: Algorithms 1–3, free-network self-calibrating adjustment, term selection).
+    Calibrate(calibrate::Args),
     /// Match circular targets across the frames of an SfM model (paper Algorithms 1–3).
     Match(matching::Args),
     /// Show, list or convert device profiles.
@@ -90,6 +94,7 @@ fn run(command: Command, globals: Globals) -> Result<()> {
         Command::Undistort(args) => undistort::run(&args, globals),
         Command::Detect(args) => detect::run(&args, globals),
         Command::Match(args) => matching::run(&args, globals),
+        Command::Calibrate(args) => calibrate::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
     }

@@ -1,0 +1,543 @@
+//! `pipemeasure calibrate --device NAME --frames DIR [--sfm MODEL] [--out PATH] [--report DIR]
+//! [--force] [--cross-validate]`: the calibration loop on a lab video's frames, written as a
+//! device profile.
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use nalgebra::Vector2;
+use pipemeasure::calibrate::checks::{
+    DistortionCheck, ImageMap, check_distortion, projection_difference, projection_uncertainty,
+};
+use pipemeasure::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, calibrate};
+use pipemeasure::camera::Term;
+use pipemeasure::geometry::conic::Ellipse;
+use pipemeasure::geometry::pose::camera_centre;
+use pipemeasure::io::atomic::write_bytes_atomic;
+use pipemeasure::io::colmap::{Reconstruction, run_colmap_sfm};
+use pipemeasure::profile::{
+    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, StdDev,
+};
+use pipemeasure::report::plots;
+use serde::Serialize;
+
+use super::Globals;
+use super::matching::detect_named_frames;
+
+/// Arguments of `calibrate`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Device name: the profile is written as `calibrations/NAME.json` unless `--out` says
+    /// otherwise.
+    #[arg(long)]
+    device: String,
+    /// Folder of the lab video's frames (image names in the SfM model are relative to it).
+    #[arg(long)]
+    frames: PathBuf,
+    /// COLMAP sparse model of the frames (text or binary). Without it, COLMAP is run (CPU
+    /// features, sequential matcher, mapper) into `--work`.
+    #[arg(long)]
+    sfm: Option<PathBuf>,
+    /// COLMAP's work folder when `--sfm` is not given (default: `FRAMES/../colmap`).
+    #[arg(long)]
+    work: Option<PathBuf>,
+    /// Where to write the profile (default `calibrations/DEVICE.json`).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Replace an existing profile (the old one is kept as `PATH.bak`).
+    #[arg(long)]
+    force: bool,
+    /// Write plots (SVG), `report.json` and `report.md` into this folder.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// Also calibrate on two disjoint halves of the frames (alternate frames) and report how
+    /// much their projections differ over the image.
+    #[arg(long)]
+    cross_validate: bool,
+    /// Smallest semi-minor axis of a target to use (px).
+    #[arg(long, default_value_t = 4.0)]
+    min_semi_minor: f64,
+    /// Cap on matching/adjustment iterations.
+    #[arg(long, default_value_t = 5)]
+    max_iterations: usize,
+}
+
+/// The SfM model: the given one, or COLMAP's.
+fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
+    if let Some(dir) = &args.sfm {
+        return Reconstruction::read(dir).with_context(|| format!("--sfm {}", dir.display()));
+    }
+    let work = args.work.clone().unwrap_or_else(|| {
+        args.frames
+            .parent()
+            .unwrap_or_else(|| Path::new("."))
+            .join("colmap")
+    });
+    if !pipemeasure::io::colmap::colmap_available() {
+        bail!(
+            "no --sfm model given and `colmap` is not on PATH: install COLMAP (Debian/Ubuntu: \
+             `apt-get install colmap`) or pass the sparse model of the frames with --sfm DIR"
+        );
+    }
+    if !quiet {
+        eprintln!(
+            "running COLMAP (features, sequential matching, mapping) into {}",
+            work.display()
+        );
+    }
+    run_colmap_sfm(&args.frames, &work).with_context(|| "COLMAP sparse reconstruction")
+}
+
+/// The frame size of the model's (single) camera, checked against every image.
+fn image_size(model: &Reconstruction) -> Result<(u32, u32)> {
+    let mut sizes = model.cameras.values().map(|c| (c.width, c.height));
+    let Some(first) = sizes.next() else {
+        bail!("the SfM model has no camera")
+    };
+    if let Some(other) = sizes.find(|s| *s != first) {
+        bail!(
+            "the SfM model has cameras of different sizes ({}x{} and {}x{}): calibrate one device \
+             at one frame size",
+            first.0,
+            first.1,
+            other.0,
+            other.1
+        );
+    }
+    Ok((
+        u32::try_from(first.0).context("camera width")?,
+        u32::try_from(first.1).context("camera height")?,
+    ))
+}
+
+/// Every model image must be a file in the frames folder.
+fn check_frames(model: &Reconstruction, frames: &Path) -> Result<Vec<String>> {
+    let names: Vec<String> = model.images.values().map(|i| i.name.clone()).collect();
+    let missing: Vec<&String> = names.iter().filter(|n| !frames.join(n).is_file()).collect();
+    if !missing.is_empty() {
+        bail!(
+            "{} of the model's {} images are not in {} (first: {}): is --frames the folder the \
+             model was built from?",
+            missing.len(),
+            names.len(),
+            frames.display(),
+            missing
+                .iter()
+                .take(3)
+                .map(|s| s.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
+    Ok(names)
+}
+
+/// The model restricted to the images `keep` accepts (feature tracks shortened accordingly).
+fn sub_model(model: &Reconstruction, keep: &[bool]) -> Reconstruction {
+    let kept: std::collections::BTreeSet<_> = model
+        .images
+        .keys()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(id, _)| *id)
+        .collect();
+    let mut out = model.clone();
+    out.images.retain(|id, _| kept.contains(id));
+    for p in out.points3d.values_mut() {
+        p.track.retain(|e| kept.contains(&e.image_id));
+    }
+    out.points3d.retain(|_, p| p.track.len() >= 2);
+    out
+}
+
+#[derive(Serialize)]
+struct CrossValidation {
+    frames: [usize; 2],
+    max_px: f64,
+    rms_px: f64,
+    map: ImageMap,
+}
+
+#[derive(Serialize)]
+struct ReportJson<'a> {
+    schema: &'static str,
+    device: &'a str,
+    profile: &'a Profile,
+    selection: &'a [pipemeasure::calibrate::selection::SelectionStep],
+    iterations: &'a [pipemeasure::calibrate::pipeline::LoopRecord],
+    converged: bool,
+    redundancy: usize,
+    feature_adjustment: Option<pipemeasure::adjust::AdjustSummary>,
+    adjustment: pipemeasure::adjust::AdjustSummary,
+    distortion_check: &'a DistortionCheck,
+    projection_uncertainty: &'a ImageMap,
+    cross_validation: Option<&'a CrossValidation>,
+    high_correlations: Vec<(String, String, f64)>,
+    warnings: &'a [String],
+    observations: &'a [pipemeasure::calibrate::pipeline::CalibrationObservation],
+}
+
+fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> Profile {
+    let mut std_dev = StdDev::default();
+    for t in Term::ALL {
+        std_dev.set(t, cal.std_dev[t.index()]);
+    }
+    let idx: Vec<usize> = cal.terms.iter().map(|t| t.index()).collect();
+    let matrix = idx
+        .iter()
+        .map(|&i| {
+            idx.iter()
+                .map(|&j| {
+                    let d = (cal.covariance[(i, i)] * cal.covariance[(j, j)]).sqrt();
+                    if d > 0.0 {
+                        cal.covariance[(i, j)] / d
+                    } else {
+                        0.0
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let mut provenance = BTreeMap::new();
+    provenance.insert(
+        "tool".into(),
+        serde_json::json!(format!("pipemeasure {}", env!("CARGO_PKG_VERSION"))),
+    );
+    provenance.insert("source".into(), serde_json::json!("calibrate"));
+    provenance.insert(
+        "command".into(),
+        serde_json::json!(std::env::args().collect::<Vec<_>>().join(" ")),
+    );
+    provenance.insert(
+        "frames".into(),
+        serde_json::json!(args.frames.display().to_string()),
+    );
+    provenance.insert("sfm".into(), serde_json::json!(model));
+    provenance.insert("iterations".into(), serde_json::json!(cal.iterations.len()));
+    provenance.insert("converged".into(), serde_json::json!(cal.converged));
+    Profile {
+        schema: PROFILE_SCHEMA.into(),
+        device: args.device.clone(),
+        image: ImageSize {
+            width: size.0,
+            height: size.1,
+        },
+        model: "brown".into(),
+        terms: cal.terms.clone(),
+        intrinsics: cal.intrinsics,
+        std_dev,
+        correlation: Correlation {
+            names: cal.terms.clone(),
+            matrix,
+        },
+        residual_rms_px: Some(cal.residual_rms_px),
+        sigma0: Some(cal.sigma0),
+        images: cal.frame_names.len(),
+        targets: cal.points.len(),
+        observations: cal.observations.len(),
+        provenance,
+    }
+}
+
+fn high_correlations(profile: &Profile) -> Vec<(String, String, f64)> {
+    let n = profile.correlation.names.len();
+    let mut out = Vec::new();
+    for i in 0..n {
+        for j in 0..i {
+            let r = profile.correlation.matrix[i][j];
+            if r.abs() > 0.9 {
+                out.push((
+                    profile.correlation.names[j].name().to_string(),
+                    profile.correlation.names[i].name().to_string(),
+                    r,
+                ));
+            }
+        }
+    }
+    out
+}
+
+fn calibrate_model(
+    model: &Reconstruction,
+    detections: &[Vec<Ellipse>],
+    size: (u32, u32),
+    config: &CalibrateConfig,
+    log: &dyn Fn(&str),
+) -> Result<Calibration> {
+    let input = CalibrationInput {
+        model,
+        detections,
+        image_size: size,
+    };
+    Ok(calibrate(&input, config, log)?)
+}
+
+fn intrinsics_table(cal: &Calibration) -> String {
+    let mut s = String::from("| term | value | σ |\n| --- | ---: | ---: |\n");
+    for t in Term::ALL {
+        let v = cal.intrinsics.get(t);
+        let sd = cal.std_dev[t.index()];
+        if cal.terms.contains(&t) {
+            s += &format!("| {} | {v:.6e} | {sd:.2e} |\n", t.name());
+        } else {
+            s += &format!("| {} | {v} | fixed |\n", t.name());
+        }
+    }
+    s
+}
+
+fn write_report(
+    dir: &Path,
+    cal: &Calibration,
+    size: (u32, u32),
+    report: &ReportJson<'_>,
+) -> Result<()> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    // Radial residuals before (c, u0, v0 only) and after (the chosen model).
+    let (u0, v0) = (cal.intrinsics.u0, cal.intrinsics.v0);
+    let after: Vec<(f64, f64)> = cal
+        .observations
+        .iter()
+        .map(|o| {
+            let d = Vector2::new(o.uv[0] - u0, o.uv[1] - v0);
+            let r = d.norm().max(1e-12);
+            (r, (o.residual[0] * d.x + o.residual[1] * d.y) / r)
+        })
+        .collect();
+    let chosen = format!(
+        "chosen model ({})",
+        cal.terms
+            .iter()
+            .map(|t| t.name())
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    plots::radial_residuals(
+        &dir.join("radial_residuals.svg"),
+        &[("c, u0, v0 only", &cal.radial_base), (&chosen, &after)],
+    )?;
+    let vectors: Vec<(Vector2<f64>, Vector2<f64>)> = cal
+        .observations
+        .iter()
+        .map(|o| {
+            (
+                Vector2::new(o.uv[0], o.uv[1]),
+                Vector2::new(o.residual[0], o.residual[1]),
+            )
+        })
+        .collect();
+    let rms = cal.residual_rms_px.max(1e-6);
+    let scale = (0.02 * f64::from(size.0) / (3.0 * rms)).round().max(1.0);
+    plots::residual_vectors(&dir.join("residual_vectors.svg"), size, &vectors, scale)?;
+    let centres: Vec<_> = cal.cam_from_world.iter().map(camera_centre).collect();
+    let dirs: Vec<_> = cal
+        .cam_from_world
+        .iter()
+        .map(|p| p.rotation.inverse() * nalgebra::Vector3::z())
+        .collect();
+    plots::camera_network(
+        &dir.join("camera_network.svg"),
+        &centres,
+        &dirs,
+        &cal.points,
+    )?;
+    plots::image_map(
+        &dir.join("projection_uncertainty.svg"),
+        size,
+        &report.projection_uncertainty.values,
+        "projection σ of a ray",
+        "px",
+    )?;
+    if let Some(cv) = report.cross_validation {
+        plots::image_map(
+            &dir.join("cross_validation.svg"),
+            size,
+            &cv.map.values,
+            "difference of the two halves' projections",
+            "px",
+        )?;
+    }
+    let json = serde_json::to_string_pretty(report)?;
+    write_bytes_atomic(&dir.join("report.json"), json.as_bytes())?;
+    let mut md = format!(
+        "# Calibration of {}\n\n{} frames, {} targets, {} observations; σ0 {:.4} px, residual RMS {:.4} px, redundancy {}.\n\n",
+        report.device,
+        cal.frame_names.len(),
+        cal.points.len(),
+        cal.observations.len(),
+        cal.sigma0,
+        cal.residual_rms_px,
+        cal.redundancy
+    );
+    md += &intrinsics_table(cal);
+    md += "\nCorrelations above 0.9 (flagged):\n\n";
+    let high = &report.high_correlations;
+    if high.is_empty() {
+        md += "none\n";
+    }
+    for (a, b, r) in high {
+        md += &format!("- **{a} / {b}: {r:.3}**\n");
+    }
+    md += "\nTerm selection:\n\n";
+    for s in report.selection {
+        md += &format!(
+            "- {}: {} ({})\n",
+            s.candidate
+                .iter()
+                .map(|t| t.name())
+                .collect::<Vec<_>>()
+                .join("+"),
+            if s.accepted { "kept" } else { "refused" },
+            s.reason
+        );
+    }
+    for w in report.warnings {
+        md += &format!("\n**warning:** {w}\n");
+    }
+    write_bytes_atomic(&dir.join("report.md"), md.as_bytes())?;
+    Ok(())
+}
+
+pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    if !args.frames.is_dir() {
+        bail!("--frames {}: not a folder", args.frames.display());
+    }
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| Path::new(CALIBRATIONS_DIR).join(format!("{}.json", args.device)));
+    if out.exists() && !args.force {
+        bail!(
+            "{} exists: pass --force to replace it (the old profile is kept as {}.bak) or --out \
+             to write elsewhere",
+            out.display(),
+            out.display()
+        );
+    }
+    let model = sfm_model(args, globals.quiet)?;
+    let names = check_frames(&model, &args.frames)?;
+    let size = image_size(&model)?;
+    let detections = detect_named_frames(&args.frames, &names, args.min_semi_minor, globals.quiet)?;
+    let config = CalibrateConfig {
+        max_iterations: args.max_iterations,
+        ..CalibrateConfig::default()
+    };
+    let quiet = globals.quiet;
+    let log = move |m: &str| {
+        if !quiet {
+            eprintln!("{m}");
+        }
+    };
+    let cal = calibrate_model(&model, &detections, size, &config, &log)?;
+    let check = check_distortion(&cal.intrinsics, size);
+    let uncertainty = projection_uncertainty(&cal.intrinsics, &cal.covariance, size);
+    let mut warnings = cal.warnings.clone();
+    if !check.ok {
+        warnings.push(format!(
+            "the distortion is not monotonic and invertible over the whole frame: it fails at {} \
+             of the checked pixels, from {:.0} px from the principal point (the frame reaches \
+             {:.0} px); do not use the profile near the image border",
+            check.failing_pixels,
+            check.first_failure_radius_px.unwrap_or(f64::NAN),
+            check.frame_radius_px
+        ));
+    }
+    let cross = if args.cross_validate {
+        let halves: Vec<Vec<bool>> = (0..2)
+            .map(|h| (0..names.len()).map(|k| k % 2 == h).collect())
+            .collect();
+        let mut models = Vec::new();
+        for (h, keep) in halves.iter().enumerate() {
+            let sub = sub_model(&model, keep);
+            let det: Vec<Vec<Ellipse>> = detections
+                .iter()
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .map(|(d, _)| d.clone())
+                .collect();
+            log(&format!(
+                "cross-validation: half {} ({} frames)",
+                h + 1,
+                det.len()
+            ));
+            models.push(
+                calibrate_model(&sub, &det, size, &config, &log)
+                    .with_context(|| format!("cross-validation half {}", h + 1))?,
+            );
+        }
+        let map = projection_difference(&models[0].intrinsics, &models[1].intrinsics, size);
+        Some(CrossValidation {
+            frames: [models[0].frame_names.len(), models[1].frame_names.len()],
+            max_px: map.max,
+            rms_px: map.rms,
+            map,
+        })
+    } else {
+        None
+    };
+    let model_name = args.sfm.as_ref().map_or_else(
+        || "colmap (run by pipemeasure)".to_string(),
+        |p| p.display().to_string(),
+    );
+    let profile = profile_of(args, &cal, size, &model_name);
+    let high = high_correlations(&profile);
+    profile
+        .write(&out, args.force)
+        .with_context(|| format!("writing the profile {}", out.display()))?;
+    if let Some(dir) = &args.report {
+        let report = ReportJson {
+            schema: "pipemeasure.calibration-report/1",
+            device: &args.device,
+            profile: &profile,
+            selection: &cal.selection,
+            iterations: &cal.iterations,
+            converged: cal.converged,
+            redundancy: cal.redundancy,
+            feature_adjustment: cal.feature_adjustment,
+            adjustment: cal.summary,
+            distortion_check: &check,
+            projection_uncertainty: &uncertainty,
+            cross_validation: cross.as_ref(),
+            high_correlations: high.clone(),
+            warnings: &warnings,
+            observations: &cal.observations,
+        };
+        write_report(dir, &cal, size, &report)?;
+    }
+    outln!(
+        "calibrated {} from {} frames: {} targets, {} observations, σ0 {:.4} px, residual RMS {:.4} px",
+        args.device,
+        cal.frame_names.len(),
+        cal.points.len(),
+        cal.observations.len(),
+        cal.sigma0,
+        cal.residual_rms_px
+    );
+    out!("{}", intrinsics_table(&cal));
+    for (a, b, r) in &high {
+        outln!("correlation {a}/{b} = {r:.3} (above 0.9)");
+    }
+    outln!(
+        "projection uncertainty of a ray: worst {:.4} px, RMS {:.4} px over the frame",
+        uncertainty.max,
+        uncertainty.rms
+    );
+    if let Some(cv) = &cross {
+        outln!(
+            "cross-validation ({} / {} frames): the halves' projections differ by {:.4} px at most, {:.4} px RMS",
+            cv.frames[0],
+            cv.frames[1],
+            cv.max_px,
+            cv.rms_px
+        );
+    }
+    for w in &warnings {
+        outln!("WARNING: {w}");
+    }
+    outln!("profile written to {}", out.display());
+    if let Some(dir) = &args.report {
+        outln!("report written to {}", dir.display());
+    }
+    Ok(())
+}

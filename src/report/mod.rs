@@ -1,0 +1,20 @@
+//! Reports for people (layer 6): the calibration report's plots (SVG, plotters) and tables.
+
+pub mod plots;
+
+/// A plot that could not be drawn or written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReportError {
+    /// Drawing failed.
+    #[error("cannot draw {what}: {message}")]
+    Draw {
+        /// Which plot.
+        what: &'static str,
+        /// The backend's message.
+        message: String,
+    },
+    /// Writing failed.
+    #[error(transparent)]
+    Write(#[from] crate::io::WriteError),
+}
