@@ -77,22 +77,6 @@ fn main() {
             "selected: {:?}; truth's terms above 0.1 px: {:?}; largest distortion difference over the frame: {:.4} px",
             sc.selected, sc.significant_truth_terms, sc.max_distortion_difference_px
         );
-        if std::env::var("DEBUG_RADIAL").is_ok() {
-            let mut bins = vec![(0.0f64, 0usize); 12];
-            let rmax = cal.radial_base.iter().map(|s| s.0).fold(0.0, f64::max);
-            for (r, v) in &cal.radial_base {
-                let b = ((r / rmax) * 11.999) as usize;
-                bins[b].0 += v;
-                bins[b].1 += 1;
-            }
-            for (k, (s, n)) in bins.iter().enumerate() {
-                eprintln!(
-                    "r {:.0}: mean v_r {:.4} ({n})",
-                    rmax * (k as f64 + 0.5) / 12.0,
-                    s / (*n).max(1) as f64
-                );
-            }
-        }
         for w in &cal.warnings {
             println!("warning: {w}");
         }

@@ -1,6 +1,8 @@
 //! The bundle adjustment engine against exact truth: convergence on noise-free data, the free
 //! datum, σ against Monte-Carlo spread, and the real BAL problem against Ceres' figures.
 
+#![allow(clippy::unwrap_used)]
+
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
 use pipemeasure::adjust::{
     AdjustConfig, BrownModel, Observation, PrecisionRequest, Problem, Similarity, apply_similarity,

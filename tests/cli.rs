@@ -331,3 +331,122 @@ fn match_command_tracks_hold_one_target_each() {
     assert_eq!(code, 1);
     assert!(stderr.contains("nowhere"), "{stderr}");
 }
+
+#[test]
+fn calibrate_command_writes_a_profile_and_a_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "simulate", "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames",
+            "16", "--out", "lab", "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let args = [
+        "calibrate",
+        "--device",
+        "p30test",
+        "--frames",
+        "lab/frames",
+        "--sfm",
+        "lab/sparse",
+        "--out",
+        "prof.json",
+        "--report",
+        "report",
+        "--quiet",
+    ];
+    let (code, stdout, stderr) = pipemeasure(dir.path(), &args, &[]);
+    assert_eq!(code, 0, "{stderr}\n{stdout}");
+    assert!(stdout.contains("profile written to prof.json"), "{stdout}");
+    let profile = pipemeasure::profile::Profile::read(&dir.path().join("prof.json")).unwrap();
+    let truth = pipemeasure::sim::truth::Truth::read(&dir.path().join("lab/truth.json")).unwrap();
+    let t = truth.camera.intrinsics;
+    let e = profile.intrinsics;
+    // 16 frames of 1280×720 with the real detector: a sanity bound, the 4K acceptance is in
+    // the README's calibration table.
+    assert!((e.c - t.c).abs() < 1.0, "c {} vs {}", e.c, t.c);
+    assert!(
+        (e.u0 - t.u0).abs() < 1.5 && (e.v0 - t.v0).abs() < 1.5,
+        "{e:?} vs {t:?}"
+    );
+    assert!(
+        profile.terms.contains(&pipemeasure::camera::Term::K1),
+        "{:?}",
+        profile.terms
+    );
+    assert!(profile.sigma0.unwrap() < 0.2);
+    for f in [
+        "report.json",
+        "report.md",
+        "radial_residuals.svg",
+        "residual_vectors.svg",
+        "camera_network.svg",
+        "projection_uncertainty.svg",
+    ] {
+        assert!(dir.path().join("report").join(f).is_file(), "{f} missing");
+    }
+    // A second run refuses to overwrite; --force keeps a backup.
+    let (code, _, stderr) = pipemeasure(dir.path(), &args, &[]);
+    assert_eq!(code, 1);
+    assert!(stderr.contains("--force"), "{stderr}");
+    let mut forced = args.to_vec();
+    forced.push("--force");
+    let (code, _, stderr) = pipemeasure(dir.path(), &forced, &[]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(dir.path().join("prof.json.bak").is_file());
+}
+
+#[test]
+fn calibrate_refuses_a_model_whose_frames_are_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "simulate", "lab", "--like", "p30", "--width", "640", "--height", "360", "--frames",
+            "9", "--out", "lab", "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    std::fs::create_dir(dir.path().join("other")).unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "calibrate",
+            "--device",
+            "x",
+            "--frames",
+            "other",
+            "--sfm",
+            "lab/sparse",
+            "--out",
+            "x.json",
+        ],
+        &[],
+    );
+    assert_eq!(code, 1);
+    assert!(stderr.contains("are not in other"), "{stderr}");
+    assert!(!dir.path().join("x.json").exists());
+    // Too few frames for a calibration: a clear error, no profile.
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "calibrate",
+            "--device",
+            "x",
+            "--frames",
+            "lab/frames",
+            "--sfm",
+            "lab/sparse",
+            "--out",
+            "x.json",
+        ],
+        &[],
+    );
+    assert_eq!(code, 1);
+    assert!(stderr.contains("at least"), "{stderr}");
+    assert!(!dir.path().join("x.json").exists());
+}

@@ -311,6 +311,9 @@ pub fn precision<M: CameraModel>(
     })
 }
 
+/// One observation's Jacobian columns over the reduced parameters: (index, both rows).
+type JacobianColumns = Vec<(usize, [f64; 2])>;
+
 /// `S = U − W V⁻¹ Wᵀ` from the Jacobian records, dense row-major.
 fn reduced_normal<M: CameraModel>(
     problem: &Problem<M>,
@@ -343,7 +346,7 @@ fn reduced_normal<M: CameraModel>(
     for p in 0..problem.points.len() {
         let obs = inc.of_point(p);
         let mut v = Matrix3::zeros();
-        let mut entries: Vec<(Vec<(usize, [f64; 2])>, [[f64; 3]; 2])> = Vec::new();
+        let mut entries: Vec<(JacobianColumns, [[f64; 3]; 2])> = Vec::new();
         for &o in obs {
             let (cols, jp) = block(o);
             for i in 0..3 {

@@ -423,9 +423,9 @@ fn assemble_reduced(
             }
         }
         let mut y = vec![0.0; dg * 3];
-        for p in 0..vinv.len() {
+        for (p, vi) in vinv.iter().enumerate() {
             let wg = &nrm.wg[p * dg * 3..(p + 1) * dg * 3];
-            mul_block_3x3(wg, dg, &vinv[p], &mut y);
+            mul_block_3x3(wg, dg, vi, &mut y);
             let bp = &nrm.bp[p];
             for a in 0..dg {
                 rhs_g[a] += y[a * 3] * bp.x + y[a * 3 + 1] * bp.y + y[a * 3 + 2] * bp.z;
@@ -689,7 +689,7 @@ pub fn bundle_adjust<M: CameraModel>(
         };
         let accepted = step.and_then(|()| {
             let predicted = predicted_decrease(dims, problem, &active, &jac, &rhs, &dp);
-            if !(predicted > 0.0) {
+            if predicted.is_nan() || predicted <= 0.0 {
                 return None;
             }
             let step_norm = step_norm(&rhs, &dp);
@@ -833,12 +833,8 @@ fn predicted_decrease<M: CameraModel>(
                     for c in 0..3 {
                         jd += rec.jp[row * 3 + c] * d[c];
                     }
-                    for c in 0..dc {
-                        jd += rec.jc[row * dc + c] * x[c];
-                    }
-                    for c in 0..dg {
-                        jd += rec.jg[row * dg + c] * sol[c];
-                    }
+                    jd += dot(&rec.jc[row * dc..(row + 1) * dc], x);
+                    jd += dot(&rec.jg[row * dg..(row + 1) * dg], &sol[..dg]);
                     let r = rec.r[row];
                     sum += 0.5 * (r * r - (r + jd) * (r + jd));
                 }
@@ -847,6 +843,10 @@ fn predicted_decrease<M: CameraModel>(
         })
         .collect();
     parts.iter().sum()
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
 fn step_norm(sol: &[f64], dp: &[Vector3<f64>]) -> f64 {

@@ -67,7 +67,7 @@ impl Default for CalibrateConfig {
             feature_adjustment: true,
             max_iterations: 5,
             min_views: 3,
-            min_frames: 8,
+            min_frames: 10,
             min_targets: 20,
         }
     }
@@ -445,9 +445,18 @@ fn finish(
 fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String> {
     let corr = selected.precision.global_correlation();
     let mut out = Vec::new();
+    // Radial terms correlate among themselves by construction (a polynomial basis); a
+    // correlation of the principal distance, principal point or affinity with anything means
+    // the network does not separate them.
+    let geometric = |k: usize| {
+        matches!(
+            Term::ALL[k],
+            Term::C | Term::U0 | Term::V0 | Term::B1 | Term::B2
+        )
+    };
     for i in 0..10 {
         for j in 0..i {
-            if corr[(i, j)].abs() > 0.98 {
+            if (geometric(i) || geometric(j)) && corr[(i, j)].abs() > 0.98 {
                 out.push(format!(
                     "correlation of {} and {} is {:.3}: the network does not separate them (vary the roll, portrait and landscape, and the depth)",
                     Term::ALL[j].name(),
@@ -513,13 +522,16 @@ fn match_signature(m: &Matching) -> Vec<Vec<(usize, usize)>> {
     s
 }
 
+/// The target adjustment and, per observation, its (frame, detection) key.
+type TargetProblem = (Problem<BrownModel>, Vec<(usize, usize)>);
+
 /// The target adjustment: every track with enough corrected views, observed at Algorithm 3's
 /// centre mapped back into observed pixels.
 fn target_problem(
     m: &Matching,
     cameras: &[FrameCamera],
     config: &CalibrateConfig,
-) -> Result<(Problem<BrownModel>, Vec<(usize, usize)>), CalibrateError> {
+) -> Result<TargetProblem, CalibrateError> {
     let mut points = Vec::new();
     let mut observations = Vec::new();
     let mut keys = Vec::new();

@@ -216,6 +216,23 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
     provenance.insert("sfm".into(), serde_json::json!(model));
     provenance.insert("iterations".into(), serde_json::json!(cal.iterations.len()));
     provenance.insert("converged".into(), serde_json::json!(cal.converged));
+    // Frames from `pipemeasure simulate lab` carry their truth next to them: say so.
+    let truth_path = args.frames.parent().map(|d| d.join("truth.json"));
+    if let Some(truth) = truth_path
+        .filter(|p| p.is_file())
+        .and_then(|p| pipemeasure::sim::truth::Truth::read(&p).ok())
+    {
+        provenance.insert(
+            "simulated".into(),
+            serde_json::json!({
+                "scene": truth.scene,
+                "device_preset": truth.camera.device,
+                "seed": truth.seed,
+                "simulate_command": truth.command,
+                "note": "calibrated from simulated frames, not a real phone: calibrate your own phone and replace this profile",
+            }),
+        );
+    }
     Profile {
         schema: PROFILE_SCHEMA.into(),
         device: args.device.clone(),
