@@ -82,3 +82,74 @@ fn selection_on_true_centres_finds_the_s10_third_radial_term() {
         &[Term::K1, Term::K2, Term::K3, Term::P1, Term::P2],
     );
 }
+
+#[test]
+fn a_network_without_roll_diversity_gets_a_loud_warning() {
+    use pipemeasure::calibrate::pipeline::{CalibrateConfig, CalibrationInput, calibrate};
+    use pipemeasure::experiments::calibration::prepare;
+    use pipemeasure::experiments::matching::Scenario;
+    use pipemeasure::sim::truth::Orientation;
+
+    let mut scenario = Scenario::default();
+    scenario.options.width = 1920;
+    scenario.options.height = 1080;
+    scenario.lab.frames = 40;
+    let s = prepare(&scenario).unwrap();
+    // Keep the landscape frames only.
+    let landscape: Vec<bool> = s
+        .model
+        .images
+        .values()
+        .map(|i| {
+            s.truth
+                .frames
+                .iter()
+                .find(|f| f.name == i.name)
+                .is_some_and(|f| f.orientation == Orientation::Landscape)
+        })
+        .collect();
+    let mut model = s.model.clone();
+    let keep: std::collections::BTreeSet<_> = model
+        .images
+        .keys()
+        .zip(&landscape)
+        .filter(|(_, l)| **l)
+        .map(|(id, _)| *id)
+        .collect();
+    model.images.retain(|id, _| keep.contains(id));
+    for p in model.points3d.values_mut() {
+        p.track.retain(|e| keep.contains(&e.image_id));
+    }
+    model.points3d.retain(|_, p| p.track.len() >= 2);
+    let detections: Vec<_> = s
+        .detections
+        .iter()
+        .zip(&landscape)
+        .filter(|(_, l)| **l)
+        .map(|(d, _)| d.clone())
+        .collect();
+    assert!(detections.len() >= 15, "{}", detections.len());
+    let input = CalibrationInput {
+        model: &model,
+        detections: &detections,
+        image_size: (1920, 1080),
+    };
+    let cal = calibrate(&input, &CalibrateConfig::default(), &|_| {}).unwrap();
+    assert!(
+        cal.warnings.iter().any(|w| w.contains("same roll")),
+        "{:?}",
+        cal.warnings
+    );
+    // With both orientations (the full lab) there is no such warning.
+    let input = CalibrationInput {
+        model: &s.model,
+        detections: &s.detections,
+        image_size: (1920, 1080),
+    };
+    let cal = calibrate(&input, &CalibrateConfig::default(), &|_| {}).unwrap();
+    assert!(
+        !cal.warnings.iter().any(|w| w.contains("same roll")),
+        "{:?}",
+        cal.warnings
+    );
+}

@@ -466,23 +466,31 @@ fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String
             }
         }
     }
-    // Roll diversity: the spread of the cameras' roll about their viewing axis.
-    let rolls: Vec<f64> = p
+    // Roll diversity: the frame is arbitrary (no known "up"), so the reference is the mean of
+    // the cameras' image-down axes in the world; each camera's roll is the angle between its own
+    // image-down axis and that mean seen in its image plane. Landscape-only (or portrait-only)
+    // video keeps every roll within a few degrees; a mix puts them tens of degrees apart.
+    let downs: Vec<nalgebra::Vector3<f64>> = p
         .cam_from_world
         .iter()
-        .map(|pose| {
-            let r = pose.rotation.to_rotation_matrix();
-            // Image x axis in world coordinates.
-            let x = r.matrix().row(0).transpose();
-            x.z.atan2(x.x.hypot(x.y))
-        })
+        .map(|pose| pose.rotation.inverse() * nalgebra::Vector3::y())
         .collect();
-    let spread = rolls.iter().fold(0.0f64, |m, r| m.max(r.abs()));
-    if spread < 0.3 {
-        out.push(format!(
-            "every frame has about the same roll (largest image-x tilt {:.0}°): without portrait and landscape frames the principal point couples with the poses",
-            spread.to_degrees()
-        ));
+    let mean = downs.iter().sum::<nalgebra::Vector3<f64>>();
+    if mean.norm() > 1e-9 {
+        let largest = p
+            .cam_from_world
+            .iter()
+            .map(|pose| {
+                let v = pose.rotation * mean;
+                v.x.atan2(v.y).abs()
+            })
+            .fold(0.0f64, f64::max);
+        if largest < 0.3 {
+            out.push(format!(
+                "every frame has about the same roll (largest rotation about the viewing axis from the mean: {:.0}°): without portrait and landscape frames the principal point and the distortion couple with the poses; the profile may be wrong even where the residuals are small",
+                largest.to_degrees()
+            ));
+        }
     }
     out
 }
