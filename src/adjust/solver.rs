@@ -450,9 +450,6 @@ fn assemble_reduced(
                 rows[a * n_r + col0 + a] +=
                     lambda * u[a * dc + a].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
                 rhs[a] = -nrm.bc[c * dc + a];
-                for g in 0..dg {
-                    rows[a * n_r + g] = nrm.ugc[c * dg * dc + g * dc + a];
-                }
             }
             let mut y = [0.0; 3 * 32];
             let y = &mut y[..dc * 3];
@@ -464,23 +461,17 @@ fn assemble_reduced(
                 for a in 0..dc {
                     rhs[a] += y[a * 3] * bp.x + y[a * 3 + 1] * bp.y + y[a * 3 + 2] * bp.z;
                 }
-                if dg > 0 {
-                    sub_y_wt(
-                        y,
-                        dc,
-                        &nrm.wg[p * dg * 3..(p + 1) * dg * 3],
-                        dg,
-                        rows,
-                        n_r,
-                        0,
-                    );
-                }
+                // Upper block triangle only (cameras j ≥ c); mirrored below.
                 for &o2 in inc.of_point(p) {
+                    if obs_camera[o2] < c {
+                        continue;
+                    }
                     let w2 = &nrm.wo[o2 * dc * 3..(o2 + 1) * dc * 3];
                     sub_y_wt(y, dc, w2, dc, rows, n_r, dg + obs_camera[o2] * dc);
                 }
             }
         });
+    mirror_upper(s, n_r);
     for &k in pinned {
         for j in 0..n_r {
             s[k * n_r + j] = 0.0;
@@ -490,6 +481,17 @@ fn assemble_reduced(
         rhs[k] = 0.0;
     }
     true
+}
+
+/// Copies the upper triangle of a row-major n×n matrix onto its lower triangle (the camera
+/// rows assemble only blocks on or above the diagonal; the shared-intrinsics rows are whole).
+fn mirror_upper(s: &mut [f64], n: usize) {
+    for i in 1..n {
+        let (upper, rest) = s.split_at_mut(i * n);
+        for (j, v) in rest[..i].iter_mut().enumerate() {
+            *v = upper[j * n + i];
+        }
+    }
 }
 
 /// The point of observation `o` (looked up through the incidence of its camera's record).
