@@ -43,6 +43,7 @@ pub mod detect;
 pub mod experiments;
 pub mod geometry;
 pub mod io;
+pub mod measure;
 pub mod profile;
 pub mod report;
 pub mod robust;

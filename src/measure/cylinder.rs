@@ -1,0 +1,536 @@
+//! Robust cylinder fitting in the spirit of Maalek et al. (2019), paper "Evaluation of Impact
+//! of Calibration on Pipe Reconstruction":
+//!
+//! 1. **hypotheses** from pairs of oriented points: the axis `d = n1 × n2`, both points and
+//!    normals projected onto the plane orthogonal to `d`, the centre where the two normal
+//!    lines meet, the radius the mean distance to it;
+//! 2. **consensus** scored by MSAC on a subsample, the threshold `3σ` with `σ` the data's own
+//!    noise scale (the normals' robust plane scatter, then the residuals' MAD), never a
+//!    user-tuned value; a point counts only if its normal also points at the axis (within
+//!    30°), so walls and floors tangent to the pipe do not vote;
+//! 3. **geometric least squares** of the five cylinder parameters (axis direction 2, axis point
+//!    2, radius 1) on the inliers, minimising `distance to axis − r` — unbiased, unlike fits of
+//!    `distance²` that return `sqrt(r² + σ²)` — with inliers re-selected at 3σ of the residuals'
+//!    robust scale until they stop changing; the radius σ from `σ̂²·(JᵀJ)⁻¹`.
+
+use std::num::NonZero;
+
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use nalgebra::{Matrix5, Vector3, Vector5};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::cloud::Cloud;
+
+/// A cylinder: the axis through `point` along unit `direction`, and the radius.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Cylinder {
+    /// A point on the axis.
+    pub point: Vector3<f64>,
+    /// Unit axis direction.
+    pub direction: Vector3<f64>,
+    /// Radius (m).
+    pub radius: f64,
+}
+
+impl Cylinder {
+    /// Signed distance of `p` from the surface (positive outside).
+    #[must_use]
+    pub fn residual(&self, p: &Vector3<f64>) -> f64 {
+        (p - self.point).cross(&self.direction).norm() - self.radius
+    }
+
+    /// The outward unit radial direction at `p`.
+    #[must_use]
+    pub fn radial(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        let w = p - self.point;
+        (w - w.dot(&self.direction) * self.direction).normalize()
+    }
+}
+
+/// How to fit.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CylinderConfig {
+    /// Smallest radius to accept (m).
+    pub radius_min: f64,
+    /// Largest radius to accept (m).
+    pub radius_max: f64,
+    /// Hypotheses drawn.
+    pub hypotheses: usize,
+    /// Points the hypotheses are scored on (a random subsample).
+    pub score_sample: usize,
+    /// Largest angle between a point's normal and the radial direction of an inlier (rad).
+    pub max_normal_angle: f64,
+    /// Only axes within this angle of the hint (rad), if given.
+    pub axis_hint: Option<(Vector3<f64>, f64)>,
+    /// Fewest inliers for a cylinder to count as found.
+    pub min_inliers: usize,
+    /// Seed of the sampling.
+    pub seed: u64,
+}
+
+impl Default for CylinderConfig {
+    fn default() -> Self {
+        CylinderConfig {
+            radius_min: 0.005,
+            radius_max: 2.0,
+            hypotheses: 2000,
+            score_sample: 4000,
+            max_normal_angle: 30f64.to_radians(),
+            axis_hint: None,
+            min_inliers: 100,
+            seed: 1,
+        }
+    }
+}
+
+/// A fitted cylinder with its statistics.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct CylinderFit {
+    /// The cylinder in the input frame.
+    pub cylinder: Cylinder,
+    /// σ of the radius from the adjustment (m).
+    pub radius_std: f64,
+    /// RMS of the inliers' residuals (m).
+    pub rmse: f64,
+    /// Inlier count.
+    pub inliers: usize,
+    /// Robust noise scale the inliers were selected with (m).
+    pub noise_scale: f64,
+    /// Indices of the inliers (into the cloud's finite points).
+    #[serde(skip)]
+    pub inlier_indices: Vec<usize>,
+}
+
+/// Why no cylinder was reported.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum CylinderError {
+    /// No hypothesis gathered enough support.
+    #[error(
+        "no cylinder found: the best candidate has {best} inliers, at least {required} are needed"
+    )]
+    NotFound {
+        /// Inliers of the best candidate.
+        best: usize,
+        /// Inliers required.
+        required: usize,
+    },
+    /// A configuration value is out of range.
+    #[error("cylinder setting `{field}` is out of range: {value}")]
+    Config {
+        /// The field.
+        field: &'static str,
+        /// Its value.
+        value: String,
+    },
+}
+
+impl CylinderConfig {
+    /// Checks the fields.
+    ///
+    /// # Errors
+    /// [`CylinderError::Config`] naming the field.
+    pub fn validate(&self) -> Result<(), CylinderError> {
+        let bad = |field: &'static str, value: String| Err(CylinderError::Config { field, value });
+        if !(self.radius_min.is_finite() && self.radius_min >= 0.0) {
+            return bad("radius_min", self.radius_min.to_string());
+        }
+        if !(self.radius_max.is_finite() && self.radius_max > self.radius_min) {
+            return bad("radius_max", self.radius_max.to_string());
+        }
+        if self.hypotheses == 0 || self.score_sample < 10 {
+            return bad("hypotheses", self.hypotheses.to_string());
+        }
+        Ok(())
+    }
+}
+
+/// A hypothesis from two oriented points (step 1), `None` when degenerate or out of range.
+fn hypothesis(
+    p1: &Vector3<f64>,
+    n1: &Vector3<f64>,
+    p2: &Vector3<f64>,
+    n2: &Vector3<f64>,
+    config: &CylinderConfig,
+) -> Option<Cylinder> {
+    let d = n1.cross(n2);
+    if d.norm() < 0.05 {
+        return None;
+    }
+    let d = d.normalize();
+    if let Some((hint, angle)) = config.axis_hint
+        && d.dot(&hint).abs() < angle.cos()
+    {
+        return None;
+    }
+    let flat = |v: &Vector3<f64>| v - v.dot(&d) * d;
+    let (q1, q2) = (flat(p1), flat(p2));
+    let (m1, m2) = (flat(n1).normalize(), flat(n2).normalize());
+    // Closest points of the lines q1 + t·m1 and q2 + s·m2 (coplanar: they meet).
+    let w = q1 - q2;
+    let b = m1.dot(&m2);
+    let denom = 1.0 - b * b;
+    if denom < 1e-6 {
+        return None;
+    }
+    let (dd, e) = (m1.dot(&w), m2.dot(&w));
+    let t = (b * e - dd) / denom;
+    let s = (e - b * dd) / denom;
+    let c = 0.5 * ((q1 + t * m1) + (q2 + s * m2));
+    let r = 0.5 * ((q1 - c).norm() + (q2 - c).norm());
+    (r >= config.radius_min && r <= config.radius_max && r.is_finite()).then_some(Cylinder {
+        point: c,
+        direction: d,
+        radius: r,
+    })
+}
+
+/// Whether point `k` supports `cyl` within `threshold`, and its residual.
+fn supports(cloud: &Cloud, k: usize, cyl: &Cylinder, threshold: f64, cos_max: f64) -> Option<f64> {
+    let p = &cloud.points[k];
+    let e = cyl.residual(p);
+    if e.abs() > threshold {
+        return None;
+    }
+    (cloud.normals[k].dot(&cyl.radial(p)).abs() >= cos_max).then_some(e)
+}
+
+/// Nearest sample neighbours the local half of the pairs draws its second point from.
+const LOCAL_NEIGHBOURS: usize = 32;
+/// Best hypotheses checked for angular coverage.
+const TOP_HYPOTHESES: usize = 50;
+/// Hypotheses refined before the best is chosen.
+const REFINED_HYPOTHESES: usize = 5;
+/// Smallest arc (rad) of the circumference the supporting points must span (60°): a strip of
+/// a plane tangent to a large cylinder has support but no arc.
+pub const MIN_COVERAGE: f64 = std::f64::consts::FRAC_PI_3;
+
+/// The arc (rad) of the circumference spanned by the points of `idx` that support `cyl`: 2π
+/// minus the largest gap between their azimuths about the axis.
+pub fn normal_coverage(
+    cloud: &Cloud,
+    idx: &[usize],
+    cyl: &Cylinder,
+    threshold: f64,
+    cos_max: f64,
+) -> f64 {
+    let d = cyl.direction;
+    let e1 = if d.x.abs() < 0.9 {
+        Vector3::x()
+    } else {
+        Vector3::y()
+    };
+    let e1 = (e1 - e1.dot(&d) * d).normalize();
+    let e2 = d.cross(&e1);
+    let mut az: Vec<f64> = idx
+        .iter()
+        .filter(|&&k| {
+            supports(cloud, k, cyl, point_threshold(cloud, k, threshold), cos_max).is_some()
+        })
+        .map(|&k| {
+            let u = cyl.radial(&cloud.points[k]);
+            u.dot(&e2).atan2(u.dot(&e1))
+        })
+        .collect();
+    if az.len() < 3 {
+        return 0.0;
+    }
+    az.sort_by(f64::total_cmp);
+    let mut gap = az[0] + std::f64::consts::TAU - az[az.len() - 1];
+    for w in az.windows(2) {
+        gap = gap.max(w[1] - w[0]);
+    }
+    std::f64::consts::TAU - gap
+}
+
+/// RMS distance of the points `idx` from their least-squares plane.
+fn plane_rms(cloud: &Cloud, idx: &[usize]) -> f64 {
+    let n = idx.len().max(1) as f64;
+    let mean: Vector3<f64> = idx.iter().map(|&k| cloud.points[k]).sum::<Vector3<f64>>() / n;
+    let mut cov = nalgebra::Matrix3::zeros();
+    for &k in idx {
+        let d = cloud.points[k] - mean;
+        cov += d * d.transpose();
+    }
+    let eig = nalgebra::SymmetricEigen::new(cov / n);
+    eig.eigenvalues.min().max(0.0).sqrt()
+}
+
+/// The consensus threshold of point `k`: 3 × its local noise, at least `floor`.
+fn point_threshold(cloud: &Cloud, k: usize, floor: f64) -> f64 {
+    (3.0 * cloud.point_noise[k]).max(floor)
+}
+
+/// Step 3: Gauss–Newton on (axis direction, axis point, radius) over `idx`, minimising
+/// `Σ (|(p − a)×d| − r)²`. Returns the cylinder and `(JᵀJ)⁻¹` at the solution.
+fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Matrix5<f64>, f64)> {
+    let mut cyl = start;
+    let mut cov = Matrix5::zeros();
+    let mut ss = 0.0;
+    for _ in 0..20 {
+        let d = cyl.direction;
+        // A basis of the plane orthogonal to d.
+        let e1 = if d.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        let e1 = (e1 - e1.dot(&d) * d).normalize();
+        let e2 = d.cross(&e1);
+        // Fixed-size chunks summed in order: the same result on any number of threads.
+        let parts: Vec<(Matrix5<f64>, Vector5<f64>, f64)> = idx
+            .par_chunks(4096)
+            .map(|chunk| {
+                let mut acc = (Matrix5::zeros(), Vector5::zeros(), 0.0);
+                for &k in chunk {
+                    let w = cloud.points[k] - cyl.point;
+                    let wd = w.dot(&d);
+                    let v = w - wd * d;
+                    let rho = v.norm().max(1e-300);
+                    let u = v / rho;
+                    let r = rho - cyl.radius;
+                    let j = Vector5::new(
+                        -wd * u.dot(&e1),
+                        -wd * u.dot(&e2),
+                        -u.dot(&e1),
+                        -u.dot(&e2),
+                        -1.0,
+                    );
+                    acc.0 += j * j.transpose();
+                    acc.1 += j * r;
+                    acc.2 += r * r;
+                }
+                acc
+            })
+            .collect();
+        let (mut jtj, mut jtr, mut sum) = (Matrix5::zeros(), Vector5::zeros(), 0.0);
+        for (a, b, c) in parts {
+            jtj += a;
+            jtr += b;
+            sum += c;
+        }
+        cov = jtj.try_inverse()?;
+        ss = sum;
+        let step = -(cov * jtr);
+        let dir = (d + step[0] * e1 + step[1] * e2).normalize();
+        let point = cyl.point + step[2] * e1 + step[3] * e2;
+        // Keep the axis point the one nearest the local origin (it slides along the axis).
+        let point = point - point.dot(&dir) * dir;
+        cyl = Cylinder {
+            point,
+            direction: dir,
+            radius: cyl.radius + step[4],
+        };
+        if step.norm() < 1e-12 * (1.0 + cyl.radius) {
+            break;
+        }
+    }
+    Some((cyl, cov, ss))
+}
+
+/// Fits the best-supported cylinder of a prepared cloud.
+///
+/// Deterministic: the same cloud and seed give the same fit on any number of threads.
+///
+/// # Errors
+/// [`CylinderError::NotFound`] when no candidate reaches `min_inliers`;
+/// [`CylinderError::Config`] for bad settings.
+pub fn fit_cylinder(cloud: &Cloud, config: &CylinderConfig) -> Result<CylinderFit, CylinderError> {
+    fit_cylinder_among(cloud, &(0..cloud.points.len()).collect::<Vec<_>>(), config)
+}
+
+/// [`fit_cylinder`] restricted to the points `candidates` (a region of interest, or what
+/// earlier fits left).
+///
+/// # Errors
+/// See [`fit_cylinder`].
+pub fn fit_cylinder_among(
+    cloud: &Cloud,
+    candidates: &[usize],
+    config: &CylinderConfig,
+) -> Result<CylinderFit, CylinderError> {
+    config.validate()?;
+    let not_found = |best| CylinderError::NotFound {
+        best,
+        required: config.min_inliers,
+    };
+    if candidates.len() < config.min_inliers.max(3) {
+        return Err(not_found(0));
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(config.seed);
+    let n = candidates.len();
+    let sample: Vec<usize> = if n <= config.score_sample {
+        candidates.to_vec()
+    } else {
+        (0..config.score_sample)
+            .map(|_| candidates[rng.random_range(0..n)])
+            .collect()
+    };
+    // Half the pairs anywhere in the sample, half local: the second point among the first's
+    // nearest sample neighbours, so that small cylinders in large scenes get pairs on them.
+    let entries: Vec<[f64; 3]> = sample
+        .iter()
+        .map(|&k| {
+            let p = cloud.points[k];
+            [p.x, p.y, p.z]
+        })
+        .collect();
+    let tree: ImmutableKdTree<f64, 3> =
+        ImmutableKdTree::new_from_slice(&entries).map_err(|_| not_found(0))?;
+    let local_k = NonZero::new(LOCAL_NEIGHBOURS.min(sample.len())).unwrap_or(NonZero::<usize>::MIN);
+    let pairs: Vec<(usize, usize)> = (0..config.hypotheses)
+        .map(|h| {
+            let a = rng.random_range(0..sample.len());
+            let b = if h % 2 == 0 {
+                rng.random_range(0..sample.len())
+            } else {
+                let nb = tree
+                    .query(&entries[a])
+                    .nearest_n::<SquaredEuclidean<f64>>(local_k)
+                    .execute();
+                nb[rng.random_range(0..nb.len())].item as usize
+            };
+            (sample[a], sample[b])
+        })
+        .collect();
+    let cos_max = config.max_normal_angle.cos();
+    // The floor of every point's threshold: 3 × the cloud's typical local noise.
+    let threshold = (3.0 * cloud.surface_noise).max(1e-6);
+    // Step 2: MSAC over the subsample, hypotheses in parallel, ties broken by index.
+    let mut scored: Vec<(f64, usize, Cylinder)> = pairs
+        .par_iter()
+        .enumerate()
+        .filter_map(|(h, &(a, b))| {
+            let cyl = hypothesis(
+                &cloud.points[a],
+                &cloud.normals[a],
+                &cloud.points[b],
+                &cloud.normals[b],
+                config,
+            )?;
+            // MSAC with each point's own threshold (3 × its local noise), normalised.
+            let cost: f64 = sample
+                .iter()
+                .map(|&k| {
+                    let t = point_threshold(cloud, k, threshold);
+                    supports(cloud, k, &cyl, t, cos_max).map_or(1.0, |e| (e / t).powi(2))
+                })
+                .sum();
+            Some((cost, h, cyl))
+        })
+        .collect();
+    scored.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
+    // The best few hypotheses whose supporting normals turn around the axis (a strip of a
+    // plane tangent to a large cylinder has support but one normal direction), each refined
+    // on its sample support; the one with the least MSAC cost after refinement wins.
+    let msac = |c: &Cylinder| -> f64 {
+        sample
+            .iter()
+            .map(|&k| {
+                let t = point_threshold(cloud, k, threshold);
+                supports(cloud, k, c, t, cos_max).map_or(1.0, |e| (e / t).powi(2))
+            })
+            .sum()
+    };
+    let select = |c: &Cylinder, pool: &[usize]| -> Vec<usize> {
+        pool.iter()
+            .copied()
+            .filter(|&k| {
+                supports(cloud, k, c, point_threshold(cloud, k, threshold), cos_max).is_some()
+            })
+            .collect()
+    };
+    let in_range = |c: &Cylinder| c.radius >= config.radius_min && c.radius <= config.radius_max;
+    let best = scored
+        .iter()
+        .take(TOP_HYPOTHESES)
+        .filter(|(_, _, c)| normal_coverage(cloud, &sample, c, threshold, cos_max) >= MIN_COVERAGE)
+        .take(REFINED_HYPOTHESES)
+        .filter_map(|(_, _, c)| {
+            let support = select(c, &sample);
+            if support.len() < 6 {
+                return None;
+            }
+            let (r, _, ss) = refine(cloud, &support, *c)?;
+            let cyl_rms = (ss / support.len() as f64).sqrt();
+            // A patch of a plane fits a large cylinder too: refuse support that a plane
+            // explains (no curvature beyond the noise).
+            let curved = plane_rms(cloud, &support) > 3.0 * cyl_rms;
+            let around = normal_coverage(cloud, &support, &r, threshold, cos_max) >= MIN_COVERAGE;
+            (in_range(&r) && curved && around).then(|| (msac(&r), r))
+        })
+        .min_by(|x, y| x.0.total_cmp(&y.0));
+    let Some((_, mut cyl)) = best else {
+        return Err(not_found(0));
+    };
+    // Step 3: inliers over every candidate (each point's own threshold), geometric LS, until
+    // the inliers stop changing.
+    let mut inliers: Vec<usize> = Vec::new();
+    let mut result = None;
+    for _ in 0..10 {
+        let next: Vec<usize> = candidates
+            .par_chunks(4096)
+            .flat_map_iter(|chunk| select(&cyl, chunk))
+            .collect();
+        if next.len() < config.min_inliers.max(6) {
+            return Err(not_found(next.len()));
+        }
+        let same = next == inliers;
+        inliers = next;
+        let Some((c, cov, ss)) = refine(cloud, &inliers, cyl) else {
+            return Err(not_found(inliers.len()));
+        };
+        cyl = c;
+        if !in_range(&cyl) {
+            return Err(not_found(0));
+        }
+        let dof = (inliers.len() - 5) as f64;
+        result = Some((cov[(4, 4)] * ss / dof, ss));
+        if same {
+            break;
+        }
+    }
+    let (var_r, ss) = result.ok_or_else(|| not_found(0))?;
+    let mut abs: Vec<f64> = inliers
+        .iter()
+        .map(|&k| cyl.residual(&cloud.points[k]).abs())
+        .collect();
+    abs.sort_by(f64::total_cmp);
+    let scale = 1.4826 * abs[abs.len() / 2];
+    Ok(CylinderFit {
+        cylinder: Cylinder {
+            point: cyl.point + cloud.origin,
+            direction: cyl.direction,
+            radius: cyl.radius,
+        },
+        radius_std: var_r.max(0.0).sqrt(),
+        rmse: (ss / inliers.len() as f64).sqrt(),
+        inliers: inliers.len(),
+        noise_scale: scale,
+        inlier_indices: inliers,
+    })
+}
+
+/// Every cylinder of the cloud, best supported first: fit, remove its inliers, repeat until
+/// none is found (at most `max_count`).
+#[must_use]
+pub fn fit_all_cylinders(
+    cloud: &Cloud,
+    config: &CylinderConfig,
+    max_count: usize,
+) -> Vec<CylinderFit> {
+    let mut remaining: Vec<usize> = (0..cloud.points.len()).collect();
+    let mut out = Vec::new();
+    while out.len() < max_count {
+        let Ok(fit) = fit_cylinder_among(cloud, &remaining, config) else {
+            break;
+        };
+        let taken: std::collections::HashSet<usize> = fit.inlier_indices.iter().copied().collect();
+        remaining.retain(|k| !taken.contains(k));
+        out.push(fit);
+    }
+    out
+}

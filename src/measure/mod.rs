@@ -1,0 +1,11 @@
+//! The measurement job (layer 4): the cloud around a local origin with its k-d tree and normals
+//! (`cloud`), robust cylinder fitting (`cylinder`).
+
+pub mod cloud;
+pub mod cylinder;
+
+pub use cloud::{Cloud, CloudError};
+pub use cylinder::{
+    Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_all_cylinders, fit_cylinder,
+    fit_cylinder_among,
+};
