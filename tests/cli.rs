@@ -450,3 +450,56 @@ fn calibrate_refuses_a_model_whose_frames_are_missing() {
     assert!(stderr.contains("at least"), "{stderr}");
     assert!(!dir.path().join("x.json").exists());
 }
+
+#[test]
+fn fit_cylinder_command_reports_json_and_exit_3_when_nothing_is_found() {
+    use pipemeasure::io::ply::{PointCloud, write_binary};
+    let dir = tempfile::tempdir().unwrap();
+    // A 50 mm pipe along y through (2, 0, 1), exact points, 1e6 m east.
+    let pipe: Vec<nalgebra::Point3<f64>> = (0..6000)
+        .map(|i| {
+            let a = f64::from(i) * 0.731;
+            let t = f64::from(i % 100) * 0.01;
+            nalgebra::Point3::new(1.0e6 + 2.0 + 0.05 * a.cos(), t, 1.0 + 0.05 * a.sin())
+        })
+        .collect();
+    write_binary(&dir.path().join("pipe.ply"), &PointCloud::from_points(pipe)).unwrap();
+    let (code, stdout, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "fit-cylinder",
+            "pipe.ply",
+            "--json",
+            "--radius-min",
+            "0.01",
+            "--radius-max",
+            "0.2",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let v: serde_json::Value = serde_json::from_str(stdout.trim()).unwrap();
+    assert!((v["radius_m"].as_f64().unwrap() - 0.05).abs() < 1e-9, "{v}");
+    assert_eq!(v["inliers"].as_u64().unwrap(), 6000);
+    assert!(v["axis"]["direction"][1].as_f64().unwrap().abs() > 1.0 - 1e-9);
+    // A plane: no cylinder, exit code 3.
+    let plane: Vec<nalgebra::Point3<f64>> = (0..4000)
+        .map(|i| nalgebra::Point3::new(f64::from(i % 64) * 0.01, f64::from(i / 64) * 0.01, 0.0))
+        .collect();
+    write_binary(
+        &dir.path().join("plane.ply"),
+        &PointCloud::from_points(plane),
+    )
+    .unwrap();
+    let (code, _, stderr) = pipemeasure(dir.path(), &["fit-cylinder", "plane.ply"], &[]);
+    assert_eq!(code, 3, "{stderr}");
+    assert!(stderr.contains("no cylinder found"), "{stderr}");
+    // An empty cloud: a clear error naming the file.
+    write_binary(&dir.path().join("empty.ply"), &PointCloud::default()).unwrap();
+    let (code, _, stderr) = pipemeasure(dir.path(), &["fit-cylinder", "empty.ply"], &[]);
+    assert_eq!(code, 1);
+    assert!(
+        stderr.contains("empty.ply") && stderr.contains("no finite points"),
+        "{stderr}"
+    );
+}

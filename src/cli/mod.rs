@@ -19,6 +19,7 @@ macro_rules! out {
 
 mod calibrate;
 mod detect;
+mod fit_cylinder;
 mod matching;
 mod profile;
 mod progress;
@@ -52,6 +53,8 @@ enum Command {
     /// Calibrate a device from a lab video's frames into its profile (paper's calibration
     /// loop: Algorithms 1–3, free-network self-calibrating adjustment, term selection).
     Calibrate(calibrate::Args),
+    /// Fit the best-supported cylinder (or every cylinder) of a point cloud.
+    FitCylinder(fit_cylinder::Args),
     /// Match circular targets across the frames of an SfM model (paper Algorithms 1–3).
     Match(matching::Args),
     /// Show, list or convert device profiles.
@@ -95,6 +98,7 @@ fn run(command: Command, globals: Globals) -> Result<()> {
         Command::Detect(args) => detect::run(&args, globals),
         Command::Match(args) => matching::run(&args, globals),
         Command::Calibrate(args) => calibrate::run(&args, globals),
+        Command::FitCylinder(args) => fit_cylinder::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
     }
@@ -107,8 +111,13 @@ fn is_broken_pipe(err: &anyhow::Error) -> bool {
     })
 }
 
-/// 1 for every failure; "nothing found" outcomes get 3 once the stages that can report them
-/// exist.
-fn exit_code_for(_err: &anyhow::Error) -> ExitCode {
-    ExitCode::from(1)
+/// 3 when nothing was found (no cylinder), 1 for every other failure.
+fn exit_code_for(err: &anyhow::Error) -> ExitCode {
+    let nothing_found = err.chain().any(|e| {
+        matches!(
+            e.downcast_ref::<pipemeasure::measure::CylinderError>(),
+            Some(pipemeasure::measure::CylinderError::NotFound { .. })
+        )
+    });
+    ExitCode::from(if nothing_found { 3 } else { 1 })
 }
