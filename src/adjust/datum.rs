@@ -21,7 +21,7 @@ use rayon::prelude::*;
 
 use super::model::CameraModel;
 use super::problem::Problem;
-use super::solver::{Dims, Incidence, cholesky_scratch, linearise, pinned_indices};
+use super::solver::{Dims, Incidence, Rec, cholesky_scratch, linearise, pinned_indices, view};
 use super::{AdjustError, Loss};
 use crate::geometry::pose::{Rigid3, skew};
 
@@ -314,6 +314,20 @@ pub fn precision<M: CameraModel>(
 /// One observation's Jacobian columns over the reduced parameters: (index, both rows).
 type JacobianColumns = Vec<(usize, [f64; 2])>;
 
+/// The non-zero Jacobian columns of one observation over the reduced parameters (shared
+/// intrinsics, then its camera's block), with their index.
+fn reduced_columns(rec: &Rec<'_>, dims: Dims, camera: usize) -> JacobianColumns {
+    let Dims { dg, dc, .. } = dims;
+    let mut cols = Vec::with_capacity(dg + dc + 3);
+    for g in 0..dg {
+        cols.push((g, [rec.jg[g], rec.jg[dg + g]]));
+    }
+    for k in 0..dc {
+        cols.push((dg + camera * dc + k, [rec.jc[k], rec.jc[dc + k]]));
+    }
+    cols
+}
+
 /// `S = U − W V⁻¹ Wᵀ` from the Jacobian records, dense row-major.
 fn reduced_normal<M: CameraModel>(
     problem: &Problem<M>,
@@ -322,26 +336,17 @@ fn reduced_normal<M: CameraModel>(
     jac: &[f64],
     s: &mut [f64],
 ) -> Result<(), AdjustError> {
-    let Dims {
-        dg,
-        dc,
-        n_r,
-        stride,
-        ..
-    } = dims;
+    let Dims { n_r, stride, .. } = dims;
     let block = |o: usize| {
-        let rec = &jac[o * stride..(o + 1) * stride];
-        let cam = problem.observations[o].camera;
-        // (column index, 2-row Jacobian column) for the reduced parameters.
-        let mut cols: Vec<(usize, [f64; 2])> = Vec::with_capacity(dg + dc);
-        for g in 0..dg {
-            cols.push((g, [rec[8 + 2 * dc + g], rec[8 + 2 * dc + dg + g]]));
-        }
-        for k in 0..dc {
-            cols.push((dg + cam * dc + k, [rec[8 + k], rec[8 + dc + k]]));
-        }
-        let jp = [[rec[2], rec[3], rec[4]], [rec[5], rec[6], rec[7]]];
-        (cols, jp)
+        let rec = view(&jac[o * stride..(o + 1) * stride], dims);
+        let jp = [
+            [rec.jp[0], rec.jp[1], rec.jp[2]],
+            [rec.jp[3], rec.jp[4], rec.jp[5]],
+        ];
+        (
+            reduced_columns(&rec, dims, problem.observations[o].camera),
+            jp,
+        )
     };
     for p in 0..problem.points.len() {
         let obs = inc.of_point(p);
@@ -391,25 +396,13 @@ fn reduced_normal<M: CameraModel>(
 
 /// The full normal matrix `JᵀJ` over the reduced parameters and the points, dense row-major.
 fn full_normal<M: CameraModel>(problem: &Problem<M>, dims: Dims, jac: &[f64], n_mat: &mut [f64]) {
-    let Dims {
-        dg,
-        dc,
-        n_r,
-        stride,
-        ..
-    } = dims;
+    let Dims { n_r, stride, .. } = dims;
     let n = n_r + 3 * problem.points.len();
     for (o, obs) in problem.observations.iter().enumerate() {
-        let rec = &jac[o * stride..(o + 1) * stride];
-        let mut cols: Vec<(usize, [f64; 2])> = Vec::with_capacity(dg + dc + 3);
-        for g in 0..dg {
-            cols.push((g, [rec[8 + 2 * dc + g], rec[8 + 2 * dc + dg + g]]));
-        }
-        for k in 0..dc {
-            cols.push((dg + obs.camera * dc + k, [rec[8 + k], rec[8 + dc + k]]));
-        }
+        let rec = view(&jac[o * stride..(o + 1) * stride], dims);
+        let mut cols = reduced_columns(&rec, dims, obs.camera);
         for k in 0..3 {
-            cols.push((n_r + 3 * obs.point + k, [rec[2 + k], rec[5 + k]]));
+            cols.push((n_r + 3 * obs.point + k, [rec.jp[k], rec.jp[3 + k]]));
         }
         for &(a, ja) in &cols {
             for &(b, jb) in &cols {

@@ -208,15 +208,16 @@ pub(crate) fn linearise<M: CameraModel>(
     true
 }
 
-/// A view of one observation's record.
-struct Rec<'a> {
-    r: &'a [f64],
-    jp: &'a [f64],
-    jc: &'a [f64],
-    jg: &'a [f64],
+/// A view of one observation's record: residual (2), and row-major Jacobians w.r.t. the point
+/// (2×3), its camera's block (2×dc) and the shared intrinsics (2×dg).
+pub(crate) struct Rec<'a> {
+    pub(crate) r: &'a [f64],
+    pub(crate) jp: &'a [f64],
+    pub(crate) jc: &'a [f64],
+    pub(crate) jg: &'a [f64],
 }
 
-fn view(rec: &[f64], dims: Dims) -> Rec<'_> {
+pub(crate) fn view(rec: &[f64], dims: Dims) -> Rec<'_> {
     let (r, rest) = rec.split_at(2);
     let (jp, rest) = rest.split_at(6);
     let (jc, jg) = rest.split_at(2 * dims.dc);
@@ -454,7 +455,7 @@ fn assemble_reduced(
             let mut y = [0.0; 3 * 32];
             let y = &mut y[..dc * 3];
             for &o in inc.of_camera(c) {
-                let p = obs_pointer(inc, o);
+                let p = inc.point_of[o];
                 let wo = &nrm.wo[o * dc * 3..(o + 1) * dc * 3];
                 mul_block_3x3(wo, dc, &vinv[p], y);
                 let bp = &nrm.bp[p];
@@ -492,11 +493,6 @@ fn mirror_upper(s: &mut [f64], n: usize) {
             *v = upper[j * n + i];
         }
     }
-}
-
-/// The point of observation `o` (looked up through the incidence of its camera's record).
-fn obs_pointer(inc: &Incidence, o: usize) -> usize {
-    inc.point_of[o]
 }
 
 /// `out = A·M` for row-major `A` (m×3) and a 3×3 `M`.
