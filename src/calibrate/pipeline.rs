@@ -255,7 +255,7 @@ pub fn calibrate(
     let mut previous: Option<Vec<Vec<(usize, usize)>>> = None;
     let mut seen: Vec<Vec<Vec<(usize, usize)>>> = Vec::new();
     let mut iterations = Vec::new();
-    let mut last: Option<(Selected, Vec<(usize, usize)>)> = None;
+    let mut last: Option<Selected> = None;
     let mut converged = false;
     for iteration in 1..=config.max_iterations {
         // Step 4.
@@ -278,31 +278,24 @@ pub fn calibrate(
         let changed = previous.as_ref() != Some(&signature);
         let cycle = changed && seen.contains(&signature);
         let views: usize = m.tracks.iter().map(|t| t.views.len()).sum();
-        if !changed {
-            log(&format!(
+        // Stop when the matches did not change, or came back to an earlier iteration's.
+        let stop = if !changed {
+            Some(format!(
                 "iteration {iteration}: {} targets, {views} views — the matches did not change: done",
                 m.tracks.len()
-            ));
-            iterations.push(LoopRecord {
-                iteration,
-                tracks: m.tracks.len(),
-                views,
-                changed,
-                adjusted_targets: 0,
-                adjusted_observations: 0,
-                sigma0: f64::NAN,
-                terms: Vec::new(),
-            });
-            converged = true;
-            break;
-        }
-        if cycle {
+            ))
+        } else if cycle {
             let msg = format!(
                 "iteration {iteration}: the matches returned to an earlier iteration's ({} targets, {views} views): they alternate, stopping",
                 m.tracks.len()
             );
+            warnings.push(msg.clone());
+            Some(msg)
+        } else {
+            None
+        };
+        if let Some(msg) = stop {
             log(&msg);
-            warnings.push(msg);
             iterations.push(LoopRecord {
                 iteration,
                 tracks: m.tracks.len(),
@@ -319,7 +312,7 @@ pub fn calibrate(
         seen.push(signature.clone());
         previous = Some(signature);
         // Step 6.
-        let (problem, keys) = target_problem(&m, &cameras, config)?;
+        let problem = target_problem(&m, &cameras, config)?;
         let reference = problem.points.clone();
         let mut selected = select_terms(&problem, &config.selection, &config.adjust, log)?;
         free_network_datum(&mut selected.problem, &reference)?;
@@ -354,7 +347,7 @@ pub fn calibrate(
             sigma0: selected.precision.sigma0,
             terms: selected.terms.clone(),
         });
-        last = Some((selected, keys));
+        last = Some(selected);
     }
     if !converged {
         let msg = format!(
@@ -364,12 +357,11 @@ pub fn calibrate(
         log(&msg);
         warnings.push(msg);
     }
-    let Some((selected, keys)) = last else {
+    let Some(selected) = last else {
         return Err(CalibrateError::Input("no iteration ran".into()));
     };
     finish(
         selected,
-        &keys,
         &a1,
         iterations,
         converged,
@@ -382,7 +374,6 @@ pub fn calibrate(
 #[allow(clippy::too_many_arguments)]
 fn finish(
     selected: Selected,
-    keys: &[(usize, usize)],
     a1: &Algorithm1,
     iterations: Vec<LoopRecord>,
     converged: bool,
@@ -399,8 +390,7 @@ fn finish(
     let observations: Vec<CalibrationObservation> = p
         .observations
         .iter()
-        .zip(keys)
-        .filter_map(|(o, _)| {
+        .filter_map(|o| {
             let r = -p.residual(o)?;
             Some(CalibrationObservation {
                 frame: o.camera,
@@ -530,27 +520,23 @@ fn match_signature(m: &Matching) -> Vec<Vec<(usize, usize)>> {
     s
 }
 
-/// The target adjustment and, per observation, its (frame, detection) key.
-type TargetProblem = (Problem<BrownModel>, Vec<(usize, usize)>);
-
 /// The target adjustment: every track with enough corrected views, observed at Algorithm 3's
 /// centre mapped back into observed pixels.
 fn target_problem(
     m: &Matching,
     cameras: &[FrameCamera],
     config: &CalibrateConfig,
-) -> Result<TargetProblem, CalibrateError> {
+) -> Result<Problem<BrownModel>, CalibrateError> {
     let mut points = Vec::new();
     let mut observations = Vec::new();
-    let mut keys = Vec::new();
     for track in &m.tracks {
-        let views: Vec<(usize, usize, Vector2<f64>)> = track
+        let views: Vec<(usize, Vector2<f64>)> = track
             .views
             .iter()
             .filter_map(|v| {
                 let c = v.corrected?;
                 let uv = cameras[v.frame].distort(&c)?;
-                Some((v.frame, v.obs, uv))
+                Some((v.frame, uv))
             })
             .collect();
         if views.len() < config.min_views {
@@ -558,14 +544,13 @@ fn target_problem(
         }
         let id = points.len();
         points.push(track.point.coords);
-        for (frame, o, uv) in views {
+        for (frame, uv) in views {
             observations.push(Observation {
                 camera: frame,
                 point: id,
                 uv,
                 weight: 1.0,
             });
-            keys.push((frame, o));
         }
     }
     if points.len() < config.min_targets {
@@ -584,7 +569,7 @@ fn target_problem(
         points,
         observations,
     )?;
-    Ok((problem, keys))
+    Ok(problem)
 }
 
 /// Algorithm 1 step 4: the feature tracks' inlier observations adjusted with c, u0, v0, k1, k2

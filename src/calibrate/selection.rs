@@ -76,6 +76,22 @@ pub struct SelectionStep {
     pub reason: String,
 }
 
+impl SelectionStep {
+    /// A candidate refused without an adjustment of its own (or whose adjustment failed).
+    fn not_tried(candidate: &[Term], best: &Fit, reason: String) -> Self {
+        SelectionStep {
+            candidate: candidate.to_vec(),
+            accepted: false,
+            t_values: Vec::new(),
+            bic_before: best.bic,
+            bic_after: f64::NAN,
+            trend_before: best.trend,
+            trend_after: None,
+            reason,
+        }
+    }
+}
+
 /// Statistics of one adjusted model.
 #[derive(Clone, Debug)]
 struct Fit {
@@ -248,16 +264,7 @@ pub fn select_terms(
                 best.trend.f, config.trend_critical
             );
             log(&format!("{}: {reason}", names(candidate)));
-            steps.push(SelectionStep {
-                candidate: candidate.clone(),
-                accepted: false,
-                t_values: Vec::new(),
-                bic_before: best.bic,
-                bic_after: f64::NAN,
-                trend_before: best.trend,
-                trend_after: None,
-                reason,
-            });
+            steps.push(SelectionStep::not_tried(candidate, &best, reason));
             radial_done = true;
             continue;
         }
@@ -268,16 +275,7 @@ pub fn select_terms(
             Err(e) => {
                 let reason = format!("adjustment failed: {e}");
                 log(&format!("{}: {reason}", names(candidate)));
-                steps.push(SelectionStep {
-                    candidate: candidate.clone(),
-                    accepted: false,
-                    t_values: Vec::new(),
-                    bic_before: best.bic,
-                    bic_after: f64::NAN,
-                    trend_before: best.trend,
-                    trend_after: None,
-                    reason,
-                });
+                steps.push(SelectionStep::not_tried(candidate, &best, reason));
                 radial_done |= radial;
                 continue;
             }
