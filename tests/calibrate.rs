@@ -108,19 +108,7 @@ fn a_network_without_roll_diversity_gets_a_loud_warning() {
                 .is_some_and(|f| f.orientation == Orientation::Landscape)
         })
         .collect();
-    let mut model = s.model.clone();
-    let keep: std::collections::BTreeSet<_> = model
-        .images
-        .keys()
-        .zip(&landscape)
-        .filter(|(_, l)| **l)
-        .map(|(id, _)| *id)
-        .collect();
-    model.images.retain(|id, _| keep.contains(id));
-    for p in model.points3d.values_mut() {
-        p.track.retain(|e| keep.contains(&e.image_id));
-    }
-    model.points3d.retain(|_, p| p.track.len() >= 2);
+    let model = s.model.with_images(&landscape);
     let detections: Vec<_> = s
         .detections
         .iter()

@@ -22,7 +22,7 @@ mod solver;
 
 pub use bal::problem_from_bal;
 pub use datum::{
-    Precision, PrecisionRequest, Similarity, apply_similarity, free_network_datum,
+    Precision, PrecisionRequest, Similarity, apply_similarity, correlation, free_network_datum,
     inner_constraint_basis, precision, similarity_from_points,
 };
 pub use model::{BalModel, BrownModel, CameraModel, ModelJacobians};

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use nalgebra::Vector2;
+use pipemeasure::adjust::correlation;
 use pipemeasure::calibrate::checks::{
     DistortionCheck, ImageMap, check_distortion, projection_difference, projection_uncertainty,
 };
@@ -133,24 +134,6 @@ fn check_frames(model: &Reconstruction, frames: &Path) -> Result<Vec<String>> {
     Ok(names)
 }
 
-/// The model restricted to the images `keep` accepts (feature tracks shortened accordingly).
-fn sub_model(model: &Reconstruction, keep: &[bool]) -> Reconstruction {
-    let kept: std::collections::BTreeSet<_> = model
-        .images
-        .keys()
-        .zip(keep)
-        .filter(|(_, k)| **k)
-        .map(|(id, _)| *id)
-        .collect();
-    let mut out = model.clone();
-    out.images.retain(|id, _| kept.contains(id));
-    for p in out.points3d.values_mut() {
-        p.track.retain(|e| kept.contains(&e.image_id));
-    }
-    out.points3d.retain(|_, p| p.track.len() >= 2);
-    out
-}
-
 #[derive(Serialize)]
 struct CrossValidation {
     frames: [usize; 2],
@@ -184,20 +167,10 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
         std_dev.set(t, cal.std_dev[t.index()]);
     }
     let idx: Vec<usize> = cal.terms.iter().map(|t| t.index()).collect();
+    let all = correlation(&cal.covariance);
     let matrix = idx
         .iter()
-        .map(|&i| {
-            idx.iter()
-                .map(|&j| {
-                    let d = (cal.covariance[(i, i)] * cal.covariance[(j, j)]).sqrt();
-                    if d > 0.0 {
-                        cal.covariance[(i, j)] / d
-                    } else {
-                        0.0
-                    }
-                })
-                .collect()
-        })
+        .map(|&i| idx.iter().map(|&j| all[(i, j)]).collect())
         .collect();
     let mut provenance = BTreeMap::new();
     provenance.insert(
@@ -466,7 +439,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             .collect();
         let mut models = Vec::new();
         for (h, keep) in halves.iter().enumerate() {
-            let sub = sub_model(&model, keep);
+            let sub = model.with_images(keep);
             let det: Vec<Vec<Ellipse>> = detections
                 .iter()
                 .zip(keep)

@@ -111,6 +111,27 @@ pub enum ModelFormat {
 }
 
 impl Reconstruction {
+    /// The model restricted to the images whose flag in `keep` (one per image, in image-id
+    /// order) is set: feature tracks shortened to those images, points left with fewer than two
+    /// observations dropped.
+    #[must_use]
+    pub fn with_images(&self, keep: &[bool]) -> Reconstruction {
+        let kept: std::collections::BTreeSet<ImageId> = self
+            .images
+            .keys()
+            .zip(keep)
+            .filter(|(_, k)| **k)
+            .map(|(id, _)| *id)
+            .collect();
+        let mut out = self.clone();
+        out.images.retain(|id, _| kept.contains(id));
+        for p in out.points3d.values_mut() {
+            p.track.retain(|e| kept.contains(&e.image_id));
+        }
+        out.points3d.retain(|_, p| p.track.len() >= 2);
+        out
+    }
+
     /// Reads a model folder, binary if `cameras.bin` exists (as COLMAP does), text otherwise.
     ///
     /// # Errors
