@@ -53,12 +53,15 @@ fn local_origin(points: &[Vector3<f64>]) -> Vector3<f64> {
     first + sum / points.len() as f64
 }
 
-/// Least-squares plane of the points of `pts` whose `keep` flag is set: (unit normal, mean,
-/// smallest eigenvalue of the covariance). No allocation.
-fn plane_fit(pts: &[Vector3<f64>], keep: &[bool]) -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
+/// Least-squares plane of `points`: (unit normal, mean, smallest eigenvalue of the covariance,
+/// i.e. the mean squared distance from the plane); `None` for fewer than three points. No
+/// allocation.
+pub(crate) fn plane_of(
+    points: impl Iterator<Item = Vector3<f64>> + Clone,
+) -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
     let mut n = 0usize;
     let mut mean = Vector3::zeros();
-    for (p, _) in pts.iter().zip(keep).filter(|(_, k)| **k) {
+    for p in points.clone() {
         mean += p;
         n += 1;
     }
@@ -67,13 +70,18 @@ fn plane_fit(pts: &[Vector3<f64>], keep: &[bool]) -> Option<(Vector3<f64>, Vecto
     }
     mean /= n as f64;
     let mut cov = Matrix3::zeros();
-    for (p, _) in pts.iter().zip(keep).filter(|(_, k)| **k) {
+    for p in points {
         let d = p - mean;
         cov += d * d.transpose();
     }
     cov /= n as f64;
     let (normal, lmin) = smallest_eigen(&cov)?;
     Some((normal, mean, lmin.max(0.0)))
+}
+
+/// [`plane_of`] the points of `pts` whose `keep` flag is set.
+fn plane_fit(pts: &[Vector3<f64>], keep: &[bool]) -> Option<(Vector3<f64>, Vector3<f64>, f64)> {
+    plane_of(pts.iter().zip(keep).filter(|(_, k)| **k).map(|(p, _)| *p))
 }
 
 /// The smallest eigenvalue of a symmetric 3×3 matrix and its unit eigenvector, in closed form

@@ -22,7 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::cloud::Cloud;
+use super::cloud::{Cloud, plane_of};
 
 /// A cylinder: the axis through `point` along unit `direction`, and the radius.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -40,6 +40,19 @@ impl Cylinder {
     #[must_use]
     pub fn residual(&self, p: &Vector3<f64>) -> f64 {
         (p - self.point).cross(&self.direction).norm() - self.radius
+    }
+
+    /// An orthonormal basis `(e1, e2)` of the plane orthogonal to the axis.
+    #[must_use]
+    pub fn cross_section_basis(&self) -> (Vector3<f64>, Vector3<f64>) {
+        let d = self.direction;
+        let e1 = if d.x.abs() < 0.9 {
+            Vector3::x()
+        } else {
+            Vector3::y()
+        };
+        let e1 = (e1 - e1.dot(&d) * d).normalize();
+        (e1, d.cross(&e1))
     }
 
     /// The outward unit radial direction at `p`.
@@ -217,14 +230,7 @@ pub fn normal_coverage(
     threshold: f64,
     cos_max: f64,
 ) -> f64 {
-    let d = cyl.direction;
-    let e1 = if d.x.abs() < 0.9 {
-        Vector3::x()
-    } else {
-        Vector3::y()
-    };
-    let e1 = (e1 - e1.dot(&d) * d).normalize();
-    let e2 = d.cross(&e1);
+    let (e1, e2) = cyl.cross_section_basis();
     let mut az: Vec<f64> = idx
         .iter()
         .filter(|&&k| {
@@ -248,15 +254,7 @@ pub fn normal_coverage(
 
 /// RMS distance of the points `idx` from their least-squares plane.
 fn plane_rms(cloud: &Cloud, idx: &[usize]) -> f64 {
-    let n = idx.len().max(1) as f64;
-    let mean: Vector3<f64> = idx.iter().map(|&k| cloud.points[k]).sum::<Vector3<f64>>() / n;
-    let mut cov = nalgebra::Matrix3::zeros();
-    for &k in idx {
-        let d = cloud.points[k] - mean;
-        cov += d * d.transpose();
-    }
-    let eig = nalgebra::SymmetricEigen::new(cov / n);
-    eig.eigenvalues.min().max(0.0).sqrt()
+    plane_of(idx.iter().map(|&k| cloud.points[k])).map_or(0.0, |(_, _, l)| l.sqrt())
 }
 
 /// The consensus threshold of point `k`: 3 × its local noise, at least `floor`.
@@ -272,14 +270,7 @@ fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Ma
     let mut ss = 0.0;
     for _ in 0..20 {
         let d = cyl.direction;
-        // A basis of the plane orthogonal to d.
-        let e1 = if d.x.abs() < 0.9 {
-            Vector3::x()
-        } else {
-            Vector3::y()
-        };
-        let e1 = (e1 - e1.dot(&d) * d).normalize();
-        let e2 = d.cross(&e1);
+        let (e1, e2) = cyl.cross_section_basis();
         // Fixed-size chunks summed in order: the same result on any number of threads.
         let parts: Vec<(Matrix5<f64>, Vector5<f64>, f64)> = idx
             .par_chunks(4096)
