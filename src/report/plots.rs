@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use nalgebra::{Point3, Vector2, Vector3};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::ReportError;
@@ -108,6 +109,32 @@ pub fn residual_vectors(
     scale: f64,
 ) -> Result<(), ReportError> {
     let what = "the residual vector plot";
+    let caption = format!("image residuals (×{scale:.0})");
+    draw_over_image(path, size, &caption, what, |chart| {
+        chart.draw_series(residuals.iter().map(|(uv, r)| {
+            PathElement::new(
+                vec![(uv.x, uv.y), (uv.x + scale * r.x, uv.y + scale * r.y)],
+                BLUE.stroke_width(1),
+            )
+        }))?;
+        chart.draw_series(
+            residuals
+                .iter()
+                .map(|(uv, _)| Circle::new((uv.x, uv.y), 1, BLACK.filled())),
+        )?;
+        Ok(())
+    })
+}
+
+/// A chart spanning the image (u right, v down, pixels), drawn by `draw` into an SVG
+/// written atomically to `path`.
+fn draw_over_image(
+    path: &Path,
+    size: (u32, u32),
+    caption: &str,
+    what: &'static str,
+    draw: impl FnOnce(&mut ImageChart<'_, '_>) -> Result<(), DrawingAreaErrorKind<std::io::Error>>,
+) -> Result<(), ReportError> {
     let (w, h) = (f64::from(size.0), f64::from(size.1));
     let mut svg = String::new();
     {
@@ -116,32 +143,22 @@ pub fn residual_vectors(
             .into_drawing_area();
         root.fill(&WHITE).map_err(draw_err(what))?;
         let mut chart = ChartBuilder::on(&root)
-            .caption(format!("image residuals (×{scale:.0})"), ("sans-serif", 16))
+            .caption(caption, ("sans-serif", 16))
             .margin(8)
             .x_label_area_size(25)
             .y_label_area_size(45)
             .build_cartesian_2d(0.0..w, h..0.0)
             .map_err(draw_err(what))?;
         chart.configure_mesh().draw().map_err(draw_err(what))?;
-        chart
-            .draw_series(residuals.iter().map(|(uv, r)| {
-                PathElement::new(
-                    vec![(uv.x, uv.y), (uv.x + scale * r.x, uv.y + scale * r.y)],
-                    BLUE.stroke_width(1),
-                )
-            }))
-            .map_err(draw_err(what))?;
-        chart
-            .draw_series(
-                residuals
-                    .iter()
-                    .map(|(uv, _)| Circle::new((uv.x, uv.y), 1, BLACK.filled())),
-            )
-            .map_err(draw_err(what))?;
+        draw(&mut chart).map_err(draw_err(what))?;
         root.present().map_err(draw_err(what))?;
     }
     finish(path, &svg)
 }
+
+/// The chart [`draw_over_image`] hands to its drawing closure.
+type ImageChart<'a, 'b> =
+    ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
 /// The camera network: projection centres with their viewing directions, and the targets.
 ///
@@ -233,50 +250,32 @@ pub fn image_map(
         .copied()
         .filter(|v| v.is_finite())
         .fold(0.0, f64::max);
-    let mut svg = String::new();
-    {
-        let px = 1000;
-        let root = SVGBackend::with_string(&mut svg, (px, (f64::from(px) * h / w) as u32 + 60))
-            .into_drawing_area();
-        root.fill(&WHITE).map_err(draw_err(what))?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption(
-                format!("{title} (white 0 → dark red {vmax:.4} {unit})"),
-                ("sans-serif", 16),
-            )
-            .margin(8)
-            .x_label_area_size(25)
-            .y_label_area_size(45)
-            .build_cartesian_2d(0.0..w, h..0.0)
-            .map_err(draw_err(what))?;
-        chart.configure_mesh().draw().map_err(draw_err(what))?;
-        let (cw, ch) = (w / cols as f64, h / rows as f64);
-        chart
-            .draw_series(values.iter().enumerate().flat_map(|(j, row)| {
-                row.iter().enumerate().map(move |(i, v)| {
-                    let t = if vmax > 0.0 && v.is_finite() {
-                        (v / vmax).clamp(0.0, 1.0)
-                    } else {
-                        0.0
-                    };
-                    let colour = RGBColor(
-                        (255.0 - 115.0 * t) as u8,
-                        (255.0 * (1.0 - t)) as u8,
-                        (255.0 * (1.0 - t)) as u8,
-                    );
-                    Rectangle::new(
-                        [
-                            (i as f64 * cw, j as f64 * ch),
-                            ((i + 1) as f64 * cw, (j + 1) as f64 * ch),
-                        ],
-                        colour.filled(),
-                    )
-                })
-            }))
-            .map_err(draw_err(what))?;
-        root.present().map_err(draw_err(what))?;
-    }
-    finish(path, &svg)
+    let caption = format!("{title} (white 0 → dark red {vmax:.4} {unit})");
+    let (cw, ch) = (w / cols as f64, h / rows as f64);
+    draw_over_image(path, size, &caption, what, |chart| {
+        chart.draw_series(values.iter().enumerate().flat_map(|(j, row)| {
+            row.iter().enumerate().map(move |(i, v)| {
+                let t = if vmax > 0.0 && v.is_finite() {
+                    (v / vmax).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
+                let colour = RGBColor(
+                    (255.0 - 115.0 * t) as u8,
+                    (255.0 * (1.0 - t)) as u8,
+                    (255.0 * (1.0 - t)) as u8,
+                );
+                Rectangle::new(
+                    [
+                        (i as f64 * cw, j as f64 * ch),
+                        ((i + 1) as f64 * cw, (j + 1) as f64 * ch),
+                    ],
+                    colour.filled(),
+                )
+            })
+        }))?;
+        Ok(())
+    })
 }
 
 #[cfg(test)]
