@@ -3,9 +3,11 @@
 
 pub mod cloud;
 pub mod cylinder;
+pub mod scale;
 
 pub use cloud::{Cloud, CloudError};
 pub use cylinder::{
     Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_all_cylinders, fit_cylinder,
     fit_cylinder_among,
 };
+pub use scale::{ReconstructedTarget, ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};

@@ -1,0 +1,542 @@
+//! The cloud's scale from targets surveyed by the TLS (paper, "Evaluation of Impact of
+//! Calibration on Pipe Reconstruction", steps 1–7): the reconstructed target centres (Algorithm 3
+//! corrected, triangulated in the SfM frame) are associated with the TLS target list, and
+//!
+//! * the paper's scale is the TLS distance over the reconstructed distance of the two
+//!   associated targets seen in the most views (step 7);
+//! * beside it, a least-squares similarity over every associated target gives a scale with a
+//!   standard deviation from its own residuals (three or more targets).
+//!
+//! Association is automatic with three or more TLS targets: every well-shaped triangle of the
+//! best-observed reconstructed targets is compared with every ordered TLS triple (equal ratios of
+//! the three side lengths: a similar triangle), the similarity of each consistent triple is
+//! scored by how many reconstructed targets it brings within tolerance of a TLS target, and the
+//! best consensus wins (most targets, then smallest residuals). Proper rotations only: a mirrored
+//! match is refused. Where four or more targets exist on both sides, the consensus must hold four
+//! (three only show two similar triangles; a fourth verifies them). With exactly two TLS targets nothing can be checked: the two reconstructed
+//! targets with the most views are taken to be them, as the paper does (the distance is
+//! symmetric, so their order does not matter).
+
+use nalgebra::{Point3, Vector3};
+
+use crate::adjust::{Similarity, similarity_from_points};
+
+/// A target centre reconstructed in the SfM frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReconstructedTarget {
+    /// Centre (SfM frame units).
+    pub point: Point3<f64>,
+    /// Number of views it was triangulated from.
+    pub views: usize,
+}
+
+/// Options of [`estimate_scale`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ScaleConfig {
+    /// Relative tolerance of distance ratios (similar triangles) and of a target's distance to
+    /// its TLS partner after the similarity, as a fraction of the TLS targets' median spacing.
+    /// Default 0.01.
+    pub tolerance: f64,
+    /// The TLS targets' coordinate standard deviation (m) per axis, used for the scale's
+    /// standard deviation when only two targets are given (no redundancy). Default 1 mm.
+    pub target_sigma_m: f64,
+    /// Reconstructed targets (most views first) whose triangles seed the association.
+    /// Default 10.
+    pub seeds: usize,
+}
+
+impl Default for ScaleConfig {
+    fn default() -> Self {
+        ScaleConfig {
+            tolerance: 0.01,
+            target_sigma_m: 0.001,
+            seeds: 10,
+        }
+    }
+}
+
+/// Why no scale.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ScaleError {
+    /// Fewer than two TLS targets or reconstructed targets.
+    #[error("the scale needs at least two {what}; found {found}")]
+    TooFew {
+        /// What is missing.
+        what: &'static str,
+        /// How many there are.
+        found: usize,
+    },
+    /// No consistent association.
+    #[error(
+        "no {required} reconstructed targets match the TLS targets' geometry (best consensus: {found}); check that the TLS list belongs to this site"
+    )]
+    NoAssociation {
+        /// Targets in the best consensus.
+        found: usize,
+        /// Targets needed.
+        required: usize,
+    },
+    /// The two targets coincide.
+    #[error("the two targets used for the scale are {0:.3e} apart: degenerate")]
+    Degenerate(f64),
+}
+
+/// The paper's two-target scale.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TwoTargetScale {
+    /// Indices of the two reconstructed targets.
+    pub reconstructed: [usize; 2],
+    /// Indices of their TLS targets.
+    pub tls: [usize; 2],
+    /// TLS distance (m).
+    pub tls_distance: f64,
+    /// Reconstructed distance (SfM units).
+    pub reconstructed_distance: f64,
+    /// `tls_distance / reconstructed_distance`.
+    pub scale: f64,
+    /// Its standard deviation from the TLS targets' a-priori σ (both coordinates' errors along
+    /// the line between them: `scale·√2·σ/d`).
+    pub scale_std: f64,
+}
+
+/// The least-squares similarity over every associated target.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SimilarityScale {
+    /// SfM frame → TLS frame.
+    pub similarity: Similarity,
+    /// Its scale.
+    pub scale: f64,
+    /// Scale standard deviation: `σ̂ / √Σ|x − x̄|²`, with `σ̂² = Σ|r|² / (3n − 7)`.
+    pub scale_std: f64,
+    /// RMS of the 3D residuals (m).
+    pub rms_m: f64,
+    /// Each associated target's residual length (m), in association order.
+    pub residuals_m: Vec<f64>,
+}
+
+/// The outcome of [`estimate_scale`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ScaleEstimate {
+    /// Associated (reconstructed, TLS) index pairs.
+    pub associated: Vec<(usize, usize)>,
+    /// The paper's scale.
+    pub two_target: TwoTargetScale,
+    /// The similarity over all associated targets (three or more).
+    pub similarity: Option<SimilarityScale>,
+    /// True when the association was assumed (exactly two TLS targets).
+    pub assumed: bool,
+}
+
+impl ScaleEstimate {
+    /// The scale to use and its standard deviation: the similarity's when there is one (it uses
+    /// every target and measures its own precision), else the paper's two-target scale.
+    #[must_use]
+    pub fn best(&self) -> (f64, f64) {
+        match &self.similarity {
+            Some(s) => (s.scale, s.scale_std),
+            None => (self.two_target.scale, self.two_target.scale_std),
+        }
+    }
+}
+
+/// Associates, then scales (module docs).
+///
+/// # Errors
+///
+/// [`ScaleError`] for fewer than two targets on either side, no consistent association of at
+/// least three targets when three or more TLS targets are given, or coincident targets.
+pub fn estimate_scale(
+    reconstructed: &[ReconstructedTarget],
+    tls: &[Point3<f64>],
+    config: &ScaleConfig,
+) -> Result<ScaleEstimate, ScaleError> {
+    if tls.len() < 2 {
+        return Err(ScaleError::TooFew {
+            what: "TLS targets",
+            found: tls.len(),
+        });
+    }
+    if reconstructed.len() < 2 {
+        return Err(ScaleError::TooFew {
+            what: "reconstructed targets (matched in two or more frames)",
+            found: reconstructed.len(),
+        });
+    }
+    let by_views = most_views_first(reconstructed);
+    let (associated, assumed) = if tls.len() == 2 {
+        (vec![(by_views[0], 0), (by_views[1], 1)], true)
+    } else {
+        let a = associate(reconstructed, &by_views, tls, config);
+        // Three pairs only say that two triangles are similar; a fourth target verifies it.
+        let required = if tls.len().min(reconstructed.len()) >= 4 { 4 } else { 3 };
+        if a.len() < required {
+            return Err(ScaleError::NoAssociation {
+                found: a.len(),
+                required,
+            });
+        }
+        (a, false)
+    };
+    let two_target = two_target_scale(reconstructed, tls, &associated, config)?;
+    let similarity = if associated.len() >= 3 {
+        similarity_scale(reconstructed, tls, &associated)
+    } else {
+        None
+    };
+    Ok(ScaleEstimate {
+        associated,
+        two_target,
+        similarity,
+        assumed,
+    })
+}
+
+/// Indices of the targets, most views first (ties: lower index first).
+fn most_views_first(targets: &[ReconstructedTarget]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..targets.len()).collect();
+    order.sort_by_key(|&i| (std::cmp::Reverse(targets[i].views), i));
+    order
+}
+
+/// Step 7: the two associated targets with the most views.
+fn two_target_scale(
+    reconstructed: &[ReconstructedTarget],
+    tls: &[Point3<f64>],
+    associated: &[(usize, usize)],
+    config: &ScaleConfig,
+) -> Result<TwoTargetScale, ScaleError> {
+    let mut pairs = associated.to_vec();
+    pairs.sort_by_key(|&(r, _)| (std::cmp::Reverse(reconstructed[r].views), r));
+    let ((r0, t0), (r1, t1)) = (pairs[0], pairs[1]);
+    let d_rec = (reconstructed[r0].point - reconstructed[r1].point).norm();
+    let d_tls = (tls[t0] - tls[t1]).norm();
+    if d_rec <= 0.0 || d_tls <= 0.0 || !(d_rec / d_tls).is_finite() {
+        return Err(ScaleError::Degenerate(d_rec.min(d_tls)));
+    }
+    let scale = d_tls / d_rec;
+    Ok(TwoTargetScale {
+        reconstructed: [r0, r1],
+        tls: [t0, t1],
+        tls_distance: d_tls,
+        reconstructed_distance: d_rec,
+        scale,
+        scale_std: scale * std::f64::consts::SQRT_2 * config.target_sigma_m / d_tls,
+    })
+}
+
+/// The least-squares similarity and its scale's standard deviation.
+fn similarity_scale(
+    reconstructed: &[ReconstructedTarget],
+    tls: &[Point3<f64>],
+    associated: &[(usize, usize)],
+) -> Option<SimilarityScale> {
+    // Around the TLS targets' first point: survey coordinates can be 1e6 m.
+    let origin = tls[associated[0].1].coords;
+    let from: Vec<Vector3<f64>> = associated
+        .iter()
+        .map(|&(r, _)| reconstructed[r].point.coords)
+        .collect();
+    let to: Vec<Vector3<f64>> = associated
+        .iter()
+        .map(|&(_, t)| tls[t].coords - origin)
+        .collect();
+    let mut sim = similarity_from_points(&from, &to)?;
+    let residuals: Vec<f64> = from
+        .iter()
+        .zip(&to)
+        .map(|(x, y)| (sim.apply(x) - y).norm())
+        .collect();
+    let n = associated.len();
+    let ss: f64 = residuals.iter().map(|r| r * r).sum();
+    let mean = from.iter().sum::<Vector3<f64>>() / n as f64;
+    // Spread of the reconstructed targets in TLS units.
+    let spread: f64 = from
+        .iter()
+        .map(|x| (sim.scale * (x - mean)).norm_squared())
+        .sum();
+    let redundancy = 3 * n - 7;
+    let scale_std = if redundancy > 0 && spread > 0.0 {
+        sim.scale * (ss / redundancy as f64).sqrt() / spread.sqrt()
+    } else {
+        f64::NAN
+    };
+    sim.translation += origin;
+    Some(SimilarityScale {
+        scale: sim.scale,
+        scale_std,
+        rms_m: (ss / n as f64).sqrt(),
+        residuals_m: residuals,
+        similarity: sim,
+    })
+}
+
+/// Consensus association (module docs): (reconstructed, TLS) pairs, at most one per target.
+fn associate(
+    reconstructed: &[ReconstructedTarget],
+    by_views: &[usize],
+    tls: &[Point3<f64>],
+    config: &ScaleConfig,
+) -> Vec<(usize, usize)> {
+    let spacing = median_spacing(tls);
+    let tol = config.tolerance;
+    let seeds = &by_views[..by_views.len().min(config.seeds.max(3))];
+    let m = tls.len();
+    let d_tls = |a: usize, b: usize| (tls[a] - tls[b]).norm();
+    let mut best: Vec<(usize, usize)> = Vec::new();
+    let mut best_ss = f64::INFINITY;
+    for (x, &i) in seeds.iter().enumerate() {
+        for (y, &j) in seeds.iter().enumerate().skip(x + 1) {
+            for &k in &seeds[y + 1..] {
+                let p = [i, j, k].map(|q| reconstructed[q].point);
+                let (dij, djk, dik) = ((p[0] - p[1]).norm(), (p[1] - p[2]).norm(), (p[0] - p[2]).norm());
+                // Well-shaped only: no side under a fifth of the longest.
+                let longest = dij.max(djk).max(dik);
+                if dij.min(djk).min(dik) < 0.2 * longest || longest <= 0.0 {
+                    continue;
+                }
+                for a in 0..m {
+                    for b in (0..m).filter(|&b| b != a) {
+                        let s = d_tls(a, b) / dij;
+                        for c in (0..m).filter(|&c| c != a && c != b) {
+                            let close = |d_t: f64, d_r: f64| (d_t - s * d_r).abs() <= tol * spacing;
+                            if !close(d_tls(b, c), djk) || !close(d_tls(a, c), dik) {
+                                continue;
+                            }
+                            let Some(sim) = triple_similarity(&p, [tls[a], tls[b], tls[c]]) else {
+                                continue;
+                            };
+                            let (pairs, ss) = consensus(reconstructed, tls, &sim, tol * spacing);
+                            if pairs.len() > best.len()
+                                || (pairs.len() == best.len() && ss < best_ss)
+                            {
+                                best = pairs;
+                                best_ss = ss;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // Refine on the whole consensus once (the triple's similarity carries the triple's noise).
+    if best.len() >= 3 {
+        let from: Vec<_> = best.iter().map(|&(r, _)| reconstructed[r].point).collect();
+        let to: Vec<_> = best.iter().map(|&(_, t)| tls[t]).collect();
+        if let Some(sim) = local_similarity(&from, &to) {
+            let (pairs, _) = consensus(reconstructed, tls, &sim, tol * spacing);
+            if pairs.len() >= best.len() {
+                best = pairs;
+            }
+        }
+    }
+    best.sort_unstable();
+    best
+}
+
+/// The similarity of three point pairs, computed around the TLS triple's first point.
+fn triple_similarity(from: &[Point3<f64>; 3], to: [Point3<f64>; 3]) -> Option<Similarity> {
+    local_similarity(from, &to)
+}
+
+/// Umeyama around the first target point (large survey coordinates), returned in absolute
+/// coordinates.
+fn local_similarity(from: &[Point3<f64>], to: &[Point3<f64>]) -> Option<Similarity> {
+    let origin = to.first()?.coords;
+    let f: Vec<Vector3<f64>> = from.iter().map(|p| p.coords).collect();
+    let t: Vec<Vector3<f64>> = to.iter().map(|p| p.coords - origin).collect();
+    let mut sim = similarity_from_points(&f, &t)?;
+    sim.translation += origin;
+    Some(sim)
+}
+
+/// Targets the similarity brings within `tol` of a TLS target (each TLS target used once, the
+/// closest claim wins) and their sum of squared distances.
+fn consensus(
+    reconstructed: &[ReconstructedTarget],
+    tls: &[Point3<f64>],
+    sim: &Similarity,
+    tol: f64,
+) -> (Vec<(usize, usize)>, f64) {
+    let mut claims: Vec<(f64, usize, usize)> = Vec::new();
+    for (r, t) in reconstructed.iter().enumerate() {
+        let y = sim.apply(&t.point.coords);
+        for (k, q) in tls.iter().enumerate() {
+            let d = (y - q.coords).norm();
+            if d <= tol {
+                claims.push((d, r, k));
+            }
+        }
+    }
+    claims.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let (mut used_r, mut used_t) = (vec![false; reconstructed.len()], vec![false; tls.len()]);
+    let mut pairs = Vec::new();
+    let mut ss = 0.0;
+    for (d, r, k) in claims {
+        if !used_r[r] && !used_t[k] {
+            used_r[r] = true;
+            used_t[k] = true;
+            pairs.push((r, k));
+            ss += d * d;
+        }
+    }
+    (pairs, ss)
+}
+
+/// Median distance of each TLS target to its nearest neighbour.
+fn median_spacing(tls: &[Point3<f64>]) -> f64 {
+    let mut nearest: Vec<f64> = tls
+        .iter()
+        .enumerate()
+        .map(|(i, p)| {
+            tls.iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, q)| (p - q).norm())
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    nearest.sort_by(f64::total_cmp);
+    nearest[nearest.len() / 2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::UnitQuaternion;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// Eight targets on a wall (y = 0) and the TLS frame: world + offset.
+    fn wall_targets() -> Vec<Point3<f64>> {
+        let xs = [-1.5, -0.9, -0.2, 0.4, 1.1, 1.6, -1.2, 0.8];
+        let zs = [0.6, 2.1, 1.0, 2.4, 0.7, 1.9, 1.5, 1.3];
+        xs.iter().zip(&zs).map(|(&x, &z)| Point3::new(x, 0.0, z)).collect()
+    }
+
+    fn sfm_of(world: &[Point3<f64>], scale: f64) -> (Similarity, Vec<Point3<f64>>) {
+        let sim = Similarity {
+            scale,
+            rotation: UnitQuaternion::from_euler_angles(0.3, -1.1, 2.0),
+            translation: Vector3::new(4.0, -2.0, 7.5),
+        };
+        let p = world.iter().map(|p| Point3::from(sim.apply(&p.coords))).collect();
+        (sim, p)
+    }
+
+    #[test]
+    fn shuffled_noisy_targets_far_from_the_origin_are_associated_and_scaled() {
+        let world = wall_targets();
+        let offset = Vector3::new(5.0e5, 4.2e6, 310.0);
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        // TLS list: shuffled, 1 mm noise, large offset, plus one target the photos never saw.
+        let order = [5usize, 2, 7, 0, 3, 6, 1, 4];
+        let mut tls: Vec<Point3<f64>> = order
+            .iter()
+            .map(|&k| {
+                let n = Vector3::from_fn(|_, _| 0.001 * (rng.random::<f64>() - 0.5) * 3.46);
+                world[k] + offset + n
+            })
+            .collect();
+        tls.push(Point3::new(2.2, 0.0, 0.4) + offset);
+        // Reconstruction: in an SfM frame of scale 0.37, one target missing, views 3..10.
+        let true_scale = 0.37;
+        let (_, sfm) = sfm_of(&world, true_scale);
+        let reconstructed: Vec<ReconstructedTarget> = (0..7)
+            .map(|k| ReconstructedTarget {
+                point: sfm[k],
+                views: 3 + (k * 5) % 8,
+            })
+            .collect();
+        let est = estimate_scale(&reconstructed, &tls, &ScaleConfig::default()).unwrap();
+        assert!(!est.assumed);
+        assert_eq!(est.associated.len(), 7);
+        for &(r, t) in &est.associated {
+            assert_eq!(order[t], r, "reconstructed {r} paired with TLS {t}");
+        }
+        let sim = est.similarity.as_ref().unwrap();
+        // 1 mm target noise over ~1 m spread: scale to ~1e-3 relative.
+        assert!((sim.scale * true_scale - 1.0).abs() < 2e-3, "{}", sim.scale);
+        assert!(sim.scale_std > 0.0 && sim.scale_std < 2e-3 / true_scale);
+        assert!(sim.rms_m < 0.002);
+        // The paper's scale: the two targets with the most views, against their TLS distance.
+        let two = est.two_target;
+        let views = |r: usize| reconstructed[r].views;
+        let most = reconstructed.iter().map(|t| t.views).max().unwrap();
+        assert_eq!(views(two.reconstructed[0]), most);
+        assert!((two.scale * true_scale - 1.0).abs() < 5e-3);
+    }
+
+    #[test]
+    fn the_similarity_scale_spread_matches_its_standard_deviation() {
+        let world = wall_targets();
+        let (_, sfm) = sfm_of(&world, 2.0);
+        let reconstructed: Vec<ReconstructedTarget> =
+            sfm.iter().map(|&p| ReconstructedTarget { point: p, views: 5 }).collect();
+        let sigma = 0.002;
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let (mut scales, mut stds) = (Vec::new(), Vec::new());
+        for _ in 0..400 {
+            let tls: Vec<Point3<f64>> = world
+                .iter()
+                .map(|p| {
+                    let n = Vector3::from_fn(|_, _| {
+                        // Box–Muller.
+                        let (u1, u2): (f64, f64) = (rng.random(), rng.random());
+                        sigma * (-2.0 * (1.0 - u1).ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+                    });
+                    p + n
+                })
+                .collect();
+            let est = estimate_scale(&reconstructed, &tls, &ScaleConfig::default()).unwrap();
+            let s = est.similarity.unwrap();
+            scales.push(s.scale);
+            stds.push(s.scale_std);
+        }
+        let mean = scales.iter().sum::<f64>() / 400.0;
+        let spread = (scales.iter().map(|s| (s - mean).powi(2)).sum::<f64>() / 399.0).sqrt();
+        let predicted = (stds.iter().map(|s| s * s).sum::<f64>() / 400.0).sqrt();
+        assert!((mean - 0.5).abs() < 3.0 * spread / 20.0, "mean {mean}");
+        let ratio = spread / predicted;
+        assert!((0.85..1.15).contains(&ratio), "spread/predicted {ratio}");
+    }
+
+    #[test]
+    fn two_tls_targets_take_the_two_best_seen_targets() {
+        let world = wall_targets();
+        let (_, sfm) = sfm_of(&world, 1.0);
+        let reconstructed: Vec<ReconstructedTarget> = sfm
+            .iter()
+            .enumerate()
+            .map(|(k, &p)| ReconstructedTarget { point: p, views: if k == 2 || k == 6 { 9 } else { 4 } })
+            .collect();
+        // Given in the other order: the distance does not care.
+        let tls = vec![world[6], world[2]];
+        let est = estimate_scale(&reconstructed, &tls, &ScaleConfig::default()).unwrap();
+        assert!(est.assumed && est.similarity.is_none());
+        assert_eq!(est.two_target.reconstructed, [2, 6]);
+        assert!((est.two_target.scale - 1.0).abs() < 1e-12);
+        let d = (world[2] - world[6]).norm();
+        assert!((est.two_target.scale_std - std::f64::consts::SQRT_2 * 0.001 / d).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_foreign_target_list_or_a_single_target_is_refused() {
+        let world = wall_targets();
+        let (_, sfm) = sfm_of(&world, 1.0);
+        let reconstructed: Vec<ReconstructedTarget> =
+            sfm.iter().map(|&p| ReconstructedTarget { point: p, views: 5 }).collect();
+        // Random targets of another site.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let foreign: Vec<Point3<f64>> = (0..8)
+            .map(|_| Point3::new(rng.random::<f64>() * 3.0, 0.0, rng.random::<f64>() * 2.5))
+            .collect();
+        assert!(matches!(
+            estimate_scale(&reconstructed, &foreign, &ScaleConfig::default()),
+            Err(ScaleError::NoAssociation { .. })
+        ));
+        assert!(matches!(
+            estimate_scale(&reconstructed, &world[..1], &ScaleConfig::default()),
+            Err(ScaleError::TooFew { found: 1, .. })
+        ));
+    }
+}
