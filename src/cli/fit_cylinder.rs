@@ -13,7 +13,7 @@ use super::Globals;
 /// Arguments of `fit-cylinder`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// The point cloud (PLY).
+    /// The point cloud (PLY, or E57 by its extension).
     cloud: PathBuf,
     /// Print JSON: `{"radius_m","radius_std_m","rmse_m","inliers","axis":{"point","direction"}}`
     /// (with `--all`, one such object per line).
@@ -87,7 +87,7 @@ pub fn run(args: &Args, _globals: Globals) -> Result<()> {
     if args.near.is_some() != args.within.is_some() {
         bail!("--near and --within go together");
     }
-    let read = pipemeasure::io::ply::read(&args.cloud)?;
+    let read = pipemeasure::io::e57::read_cloud(&args.cloud)?;
     let mut points: Vec<Vector3<f64>> = read.cloud.points.iter().map(|p| p.coords).collect();
     if points.is_empty() {
         bail!(

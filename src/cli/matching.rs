@@ -5,15 +5,16 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use pipemeasure::calibrate::matching::{MatchConfig, Matching, match_targets};
+use pipemeasure::calibrate::matching::{MatchConfig, Matching};
 use pipemeasure::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
-use pipemeasure::calibrate::views::{TargetObservation, observations};
+use pipemeasure::calibrate::views::TargetObservation;
 use pipemeasure::camera::Intrinsics;
 use pipemeasure::detect::{DetectConfig, Detector};
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::colmap::Reconstruction;
 use pipemeasure::io::frames::read_frame;
+use pipemeasure::measure::{SiteTargets, match_site_targets};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -170,22 +171,15 @@ pub(super) fn detect_named_frames(
     result.into_iter().collect()
 }
 
-/// Detects the targets of every model frame, in undistorted pixels of its camera.
-fn detect_frames(
-    a1: &Algorithm1,
-    dir: &Path,
-    min_semi_minor: f64,
-    quiet: bool,
-) -> Result<Vec<Vec<TargetObservation>>> {
-    let names: Vec<String> = a1.frames.iter().map(|f| f.name.clone()).collect();
-    let detected = detect_named_frames(dir, &names, min_semi_minor, quiet)?;
-    Ok(a1
-        .frames
-        .iter()
-        .zip(&detected)
-        .enumerate()
-        .map(|(k, (frame, ellipses))| observations(k, &frame.camera, ellipses))
-        .collect())
+/// The image size of the model's (first) camera.
+pub(super) fn model_image_size(model: &Reconstruction) -> Result<(u32, u32)> {
+    let Some(camera) = model.cameras.values().next() else {
+        bail!("the model has no camera")
+    };
+    Ok((
+        u32::try_from(camera.width).unwrap_or(u32::MAX),
+        u32::try_from(camera.height).unwrap_or(u32::MAX),
+    ))
 }
 
 fn output(model: &Path, a1: &Algorithm1, obs: &[Vec<TargetObservation>], m: &Matching) -> MatchOut {
@@ -259,14 +253,9 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         &RefineConfig::default(),
     )
     .with_context(|| format!("Algorithm 1 on {}", args.sfm.display()))?;
-    let obs = detect_frames(&a1, &args.frames, args.min_semi_minor, globals.quiet)?;
-    let Some(camera) = model.cameras.values().next() else {
-        bail!("the model has no camera")
-    };
-    let size = (
-        u32::try_from(camera.width).unwrap_or(u32::MAX),
-        u32::try_from(camera.height).unwrap_or(u32::MAX),
-    );
+    let names: Vec<String> = a1.frames.iter().map(|f| f.name.clone()).collect();
+    let detected = detect_named_frames(&args.frames, &names, args.min_semi_minor, globals.quiet)?;
+    let size = model_image_size(&model)?;
     let config = MatchConfig {
         robust_triangulation: !args.no_robust_triangulation,
         correct_before_triangulation: !args.no_eccentricity,
@@ -274,10 +263,13 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         ..MatchConfig::default()
     };
     let cameras: Vec<_> = a1.frames.iter().map(|f| f.camera).collect();
-    let m = match_targets(
+    let SiteTargets {
+        observations: obs,
+        matching: m,
+    } = match_site_targets(
         &cameras,
-        &obs,
         &a1.pairs,
+        &detected,
         size,
         a1.reprojection_sigma,
         &config,

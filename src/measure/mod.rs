@@ -4,6 +4,7 @@
 pub mod cloud;
 pub mod cylinder;
 pub mod scale;
+pub mod targets;
 
 pub use cloud::{Cloud, CloudError};
 pub use cylinder::{
@@ -11,3 +12,4 @@ pub use cylinder::{
     fit_cylinder_among,
 };
 pub use scale::{ReconstructedTarget, ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};
+pub use targets::{SiteTargets, match_site_targets};

@@ -168,7 +168,11 @@ pub fn estimate_scale(
     } else {
         let a = associate(reconstructed, &by_views, tls, config);
         // Three pairs only say that two triangles are similar; a fourth target verifies it.
-        let required = if tls.len().min(reconstructed.len()) >= 4 { 4 } else { 3 };
+        let required = if tls.len().min(reconstructed.len()) >= 4 {
+            4
+        } else {
+            3
+        };
         if a.len() < required {
             return Err(ScaleError::NoAssociation {
                 found: a.len(),
@@ -288,7 +292,11 @@ fn associate(
         for (y, &j) in seeds.iter().enumerate().skip(x + 1) {
             for &k in &seeds[y + 1..] {
                 let p = [i, j, k].map(|q| reconstructed[q].point);
-                let (dij, djk, dik) = ((p[0] - p[1]).norm(), (p[1] - p[2]).norm(), (p[0] - p[2]).norm());
+                let (dij, djk, dik) = (
+                    (p[0] - p[1]).norm(),
+                    (p[1] - p[2]).norm(),
+                    (p[0] - p[2]).norm(),
+                );
                 // Well-shaped only: no side under a fifth of the longest.
                 let longest = dij.max(djk).max(dik);
                 if dij.min(djk).min(dik) < 0.2 * longest || longest <= 0.0 {
@@ -410,7 +418,10 @@ mod tests {
     fn wall_targets() -> Vec<Point3<f64>> {
         let xs = [-1.5, -0.9, -0.2, 0.4, 1.1, 1.6, -1.2, 0.8];
         let zs = [0.6, 2.1, 1.0, 2.4, 0.7, 1.9, 1.5, 1.3];
-        xs.iter().zip(&zs).map(|(&x, &z)| Point3::new(x, 0.0, z)).collect()
+        xs.iter()
+            .zip(&zs)
+            .map(|(&x, &z)| Point3::new(x, 0.0, z))
+            .collect()
     }
 
     fn sfm_of(world: &[Point3<f64>], scale: f64) -> (Similarity, Vec<Point3<f64>>) {
@@ -419,7 +430,10 @@ mod tests {
             rotation: UnitQuaternion::from_euler_angles(0.3, -1.1, 2.0),
             translation: Vector3::new(4.0, -2.0, 7.5),
         };
-        let p = world.iter().map(|p| Point3::from(sim.apply(&p.coords))).collect();
+        let p = world
+            .iter()
+            .map(|p| Point3::from(sim.apply(&p.coords)))
+            .collect();
         (sim, p)
     }
 
@@ -470,8 +484,10 @@ mod tests {
     fn the_similarity_scale_spread_matches_its_standard_deviation() {
         let world = wall_targets();
         let (_, sfm) = sfm_of(&world, 2.0);
-        let reconstructed: Vec<ReconstructedTarget> =
-            sfm.iter().map(|&p| ReconstructedTarget { point: p, views: 5 }).collect();
+        let reconstructed: Vec<ReconstructedTarget> = sfm
+            .iter()
+            .map(|&p| ReconstructedTarget { point: p, views: 5 })
+            .collect();
         let sigma = 0.002;
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let (mut scales, mut stds) = (Vec::new(), Vec::new());
@@ -507,7 +523,10 @@ mod tests {
         let reconstructed: Vec<ReconstructedTarget> = sfm
             .iter()
             .enumerate()
-            .map(|(k, &p)| ReconstructedTarget { point: p, views: if k == 2 || k == 6 { 9 } else { 4 } })
+            .map(|(k, &p)| ReconstructedTarget {
+                point: p,
+                views: if k == 2 || k == 6 { 9 } else { 4 },
+            })
             .collect();
         // Given in the other order: the distance does not care.
         let tls = vec![world[6], world[2]];
@@ -523,8 +542,10 @@ mod tests {
     fn a_foreign_target_list_or_a_single_target_is_refused() {
         let world = wall_targets();
         let (_, sfm) = sfm_of(&world, 1.0);
-        let reconstructed: Vec<ReconstructedTarget> =
-            sfm.iter().map(|&p| ReconstructedTarget { point: p, views: 5 }).collect();
+        let reconstructed: Vec<ReconstructedTarget> = sfm
+            .iter()
+            .map(|&p| ReconstructedTarget { point: p, views: 5 })
+            .collect();
         // Random targets of another site.
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         let foreign: Vec<Point3<f64>> = (0..8)

@@ -1,0 +1,151 @@
+//! E57 point clouds (ASTM E2807, the format terrestrial laser scanners export), read with the
+//! pure-Rust `e57` crate: every scan of the file, its pose applied (each scan's points in the
+//! file's common coordinate system), spherical coordinates converted to Cartesian, invalid
+//! points left out. Returns the same [`PlyRead`] as the PLY reader so callers need not care.
+
+use std::path::Path;
+
+use nalgebra::Point3;
+
+use super::error::{ReadError, ReadErrorKind};
+use super::ply::{PlyRead, PointCloud};
+
+/// Reads every scan of an E57 file into one cloud (colours and intensity are not kept).
+///
+/// # Errors
+///
+/// [`ReadError`] naming the file: missing, not E57, corrupt, or a scan without coordinates.
+pub fn read(path: &Path) -> Result<PlyRead, ReadError> {
+    if !path.exists() {
+        return Err(ReadError::new(path, ReadErrorKind::NotFound));
+    }
+    let invalid = |e: e57::Error| ReadError::new(path, ReadErrorKind::Invalid(format!("E57: {e}")));
+    let mut reader = e57::E57Reader::from_file(path).map_err(invalid)?;
+    let mut points = Vec::new();
+    let (mut in_file, mut skipped) = (0usize, 0usize);
+    for (k, pc) in reader.pointclouds().iter().enumerate() {
+        let scan = reader.pointcloud_simple(pc).map_err(invalid)?;
+        for p in scan {
+            let p = p.map_err(|e| {
+                ReadError::new(path, ReadErrorKind::Invalid(format!("E57 scan {k}: {e}")))
+            })?;
+            in_file += 1;
+            match p.cartesian {
+                e57::CartesianCoordinate::Valid { x, y, z }
+                    if x.is_finite() && y.is_finite() && z.is_finite() =>
+                {
+                    points.push(Point3::new(x, y, z));
+                }
+                _ => skipped += 1,
+            }
+        }
+    }
+    Ok(PlyRead {
+        cloud: PointCloud::from_points(points),
+        vertices_in_file: in_file,
+        skipped_non_finite: skipped,
+    })
+}
+
+/// Reads a cloud by its extension: `.e57` through [`read`], anything else as PLY.
+///
+/// # Errors
+///
+/// [`ReadError`] of the reader.
+pub fn read_cloud(path: &Path) -> Result<PlyRead, ReadError> {
+    let is_e57 = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("e57"));
+    if is_e57 {
+        read(path)
+    } else {
+        super::ply::read(path)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use e57::{E57Writer, Quaternion, Record, RecordValue, Transform, Translation};
+
+    /// Writes two scans: one at the origin, one under a pose (90° about z, shifted), with one
+    /// point that is not finite.
+    fn write_two_scans(path: &Path) {
+        let mut w = E57Writer::from_file(path, "pipemeasure-test").unwrap();
+        let prototype = vec![
+            Record::CARTESIAN_X_F64,
+            Record::CARTESIAN_Y_F64,
+            Record::CARTESIAN_Z_F64,
+        ];
+        {
+            let mut pc = w.add_pointcloud("scan-a", prototype.clone()).unwrap();
+            for (x, y, z) in [(1.0, 2.0, 3.0), (4.5e5, 5.1e6, 12.0), (f64::NAN, 0.0, 0.0)] {
+                pc.add_point(vec![
+                    RecordValue::Double(x),
+                    RecordValue::Double(y),
+                    RecordValue::Double(z),
+                ])
+                .unwrap();
+            }
+            pc.finalize().unwrap();
+        }
+        {
+            let mut pc = w.add_pointcloud("scan-b", prototype).unwrap();
+            let half = std::f64::consts::FRAC_1_SQRT_2;
+            pc.set_transform(Some(Transform {
+                rotation: Quaternion {
+                    w: half,
+                    x: 0.0,
+                    y: 0.0,
+                    z: half,
+                },
+                translation: Translation {
+                    x: 10.0,
+                    y: 0.0,
+                    z: 1.0,
+                },
+            }));
+            pc.add_point(vec![
+                RecordValue::Double(1.0),
+                RecordValue::Double(0.0),
+                RecordValue::Double(0.0),
+            ])
+            .unwrap();
+            pc.finalize().unwrap();
+        }
+        w.finalize().unwrap();
+    }
+
+    #[test]
+    fn every_scan_is_read_with_its_pose_and_non_finite_points_are_dropped() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("scan.E57");
+        write_two_scans(&path);
+        let read = read_cloud(&path).unwrap();
+        assert_eq!(read.vertices_in_file, 4);
+        assert_eq!(read.skipped_non_finite, 1);
+        let p = &read.cloud.points;
+        assert_eq!(p.len(), 3);
+        assert_eq!(p[0], Point3::new(1.0, 2.0, 3.0));
+        assert_eq!(p[1], Point3::new(4.5e5, 5.1e6, 12.0));
+        // (1, 0, 0) turned 90° about z → (0, 1, 0), then shifted by (10, 0, 1).
+        assert!(
+            (p[2] - Point3::new(10.0, 1.0, 1.0)).norm() < 1e-12,
+            "{}",
+            p[2]
+        );
+    }
+
+    #[test]
+    fn a_file_that_is_not_e57_is_a_clear_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("scan.e57");
+        std::fs::write(&path, b"ply\nformat ascii 1.0\n").unwrap();
+        let e = read(&path).unwrap_err().to_string();
+        assert!(e.contains("scan.e57") && e.contains("E57"), "{e}");
+        let e = read(&dir.path().join("missing.e57"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("missing.e57") && e.contains("not found"), "{e}");
+    }
+}
