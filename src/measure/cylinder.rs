@@ -139,6 +139,9 @@ pub enum CylinderError {
         /// Its value.
         value: String,
     },
+    /// The cloud cannot be prepared (too few finite points).
+    #[error(transparent)]
+    Cloud(#[from] super::cloud::CloudError),
 }
 
 impl CylinderConfig {

@@ -1,8 +1,11 @@
 //! The measurement job (layer 4): the cloud around a local origin with its k-d tree and normals
-//! (`cloud`), robust cylinder fitting (`cylinder`).
+//! (`cloud`), robust cylinder fitting (`cylinder`), the site's targets (`targets`), the scale
+//! from them against the TLS (`scale`), and the pipe measured in metres with its reference
+//! (`pipe`).
 
 pub mod cloud;
 pub mod cylinder;
+pub mod pipe;
 pub mod scale;
 pub mod targets;
 
@@ -13,3 +16,7 @@ pub use cylinder::{
 };
 pub use scale::{ReconstructedTarget, ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};
 pub use targets::{SiteTargets, match_site_targets};
+pub use pipe::{
+    PipeMeasurement, Reference, Region, Scaling, fit_points, measure_pipe, reference_fit,
+    transformed_points,
+};
