@@ -42,7 +42,7 @@ pub struct Args {
     seed: u64,
 }
 
-fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
+pub(super) fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
     let v: Vec<f64> = s
         .split(',')
         .map(|t| t.trim().parse::<f64>())

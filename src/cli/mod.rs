@@ -21,6 +21,7 @@ mod calibrate;
 mod detect;
 mod fit_cylinder;
 mod matching;
+mod measure;
 mod profile;
 mod progress;
 mod simulate;
@@ -32,11 +33,24 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 /// pipemeasure: metric pipe measurements from phone video.
+///
+/// Main job: `pipemeasure --device NAME CLOUD.ply` measures the pipe in a site's dense cloud
+/// (scale from the targets against the TLS list, robust cylinder fit, TLS reference with
+/// `--tls-scan`). The subcommands are the steps and tools around it.
 #[derive(Debug, Parser)]
-#[command(name = "pipemeasure", version, about, long_about = None)]
+#[command(
+    name = "pipemeasure",
+    version,
+    about,
+    long_about = None,
+    subcommand_negates_reqs = true
+)]
 pub struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
+
+    #[command(flatten)]
+    measure: measure::Args,
 
     /// Silence logs and progress bars on stderr.
     #[arg(long, global = true)]
@@ -76,12 +90,23 @@ pub struct Globals {
 pub fn main() -> ExitCode {
     let cli = Cli::parse(); // clap prints usage errors itself and exits with 2
     let globals = Globals { quiet: cli.quiet };
-    let Some(command) = cli.command else {
-        use clap::CommandFactory;
-        let _ = Cli::command().print_help();
-        return ExitCode::from(2);
+    let outcome = match (cli.command, cli.measure.cloud.clone()) {
+        (Some(_), _) if !cli.measure.given().is_empty() => {
+            eprintln!(
+                "error: {}: options of the main command (`pipemeasure --device NAME CLOUD.ply`), not of a subcommand",
+                cli.measure.given().join(", ")
+            );
+            return ExitCode::from(2);
+        }
+        (Some(command), _) => run(command, globals),
+        (None, Some(cloud)) => measure::run(&cli.measure, &cloud, globals),
+        (None, None) => {
+            use clap::CommandFactory;
+            let _ = Cli::command().print_help();
+            return ExitCode::from(2);
+        }
     };
-    match run(command, globals) {
+    match outcome {
         Ok(()) => ExitCode::SUCCESS,
         // The reader of our output went away (`| head`): not a failure.
         Err(err) if is_broken_pipe(&err) => ExitCode::SUCCESS,
