@@ -225,7 +225,13 @@ pub fn calibrate(
     let mut warnings = Vec::new();
     // Step 3.
     let feature_adjustment = if config.feature_adjustment {
-        let (summary, intrinsics, poses) = adjust_features(input.model, &a1, &cameras, config)?;
+        let (summary, intrinsics, poses) = adjust_feature_tracks(
+            input.model,
+            &a1,
+            &cameras,
+            &FEATURE_ADJUSTMENT_TERMS,
+            &config.adjust,
+        )?;
         log(&format!(
             "Algorithm 1 step 4: adjusted {} inlier feature observations, RMS {:.3} → {:.3} px; c {:.1}, u0 {:.1}, v0 {:.1}, k1 {:.4}, k2 {:.4}",
             summary.observations_used,
@@ -493,7 +499,7 @@ fn intrinsics_of(p: &Problem<BrownModel>) -> Intrinsics {
 
 /// F of every pair from the current cameras (after an adjustment the poses are the better
 /// source); σ stays Algorithm 1's.
-fn refresh_pairs(pairs: &mut [PairGeometry], cameras: &[FrameCamera]) {
+pub fn refresh_pairs(pairs: &mut [PairGeometry], cameras: &[FrameCamera]) {
     for pair in pairs {
         let (a, b) = (&cameras[pair.a], &cameras[pair.b]);
         if let Some(f) = fundamental_from_cameras(&a.p(), &a.centre(), &b.p()) {
@@ -572,13 +578,25 @@ fn target_problem(
     Ok(problem)
 }
 
-/// Algorithm 1 step 4: the feature tracks' inlier observations adjusted with c, u0, v0, k1, k2
-/// free (Huber loss at 3σ of Algorithm 1's reprojection σ), free network.
-fn adjust_features(
+/// The intrinsics Algorithm 1 step 4 adjusts with the poses in a calibration.
+pub const FEATURE_ADJUSTMENT_TERMS: [Term; 5] = [Term::C, Term::U0, Term::V0, Term::K1, Term::K2];
+
+/// Algorithm 1 step 4: the feature tracks' inlier observations adjusted with the poses, the
+/// points and the intrinsics `free` (the others held at the cameras' values; Huber loss at 3σ of
+/// Algorithm 1's reprojection σ), free network. With `free` empty it is the site's adjustment
+/// with a device profile's intrinsics fixed; with c, k1, k2 it is COLMAP's in-situ radial
+/// self-calibration.
+///
+/// # Errors
+///
+/// [`CalibrateError`] for fewer than seven tracks with three inlier views, or a failed
+/// adjustment.
+pub fn adjust_feature_tracks(
     model: &Reconstruction,
     a1: &Algorithm1,
     cameras: &[FrameCamera],
-    config: &CalibrateConfig,
+    free: &[Term],
+    adjust: &AdjustConfig,
 ) -> Result<(AdjustSummary, Intrinsics, Vec<Rigid3>), CalibrateError> {
     let index_of: HashMap<ImageId, usize> = a1
         .frames
@@ -636,14 +654,15 @@ fn adjust_features(
         points,
         observations,
     )?;
-    problem.fixed.global = [Term::K3, Term::P1, Term::P2, Term::B1, Term::B2]
+    problem.fixed.global = Term::ALL
         .iter()
+        .filter(|t| !free.contains(t))
         .map(|t| t.index())
         .collect();
     let reference = problem.points.clone();
     let adjust = AdjustConfig {
         loss: Loss::Huber(3.0 * a1.reprojection_sigma.max(0.1)),
-        ..config.adjust
+        ..*adjust
     };
     let summary = crate::adjust::bundle_adjust(&mut problem, &adjust)?;
     free_network_datum(&mut problem, &reference)?;

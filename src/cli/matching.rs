@@ -9,13 +9,11 @@ use pipemeasure::calibrate::matching::{MatchConfig, Matching};
 use pipemeasure::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
 use pipemeasure::calibrate::views::TargetObservation;
 use pipemeasure::camera::Intrinsics;
-use pipemeasure::detect::{DetectConfig, Detector};
+use pipemeasure::detect::{DetectConfig, detect_frame_files};
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::colmap::Reconstruction;
-use pipemeasure::io::frames::read_frame;
 use pipemeasure::measure::{SiteTargets, match_site_targets};
-use rayon::prelude::*;
 use serde::Serialize;
 
 use super::Globals;
@@ -145,30 +143,12 @@ pub(super) fn detect_named_frames(
         min_semi_minor_px: min_semi_minor,
         ..DetectConfig::default()
     };
-    Detector::new(config.clone())?;
     let progress = bar(names.len() as u64, "detecting", quiet);
-    let result: Vec<Result<Vec<Ellipse>>> = names
-        .par_iter()
-        .map_init(
-            || Detector::new(config.clone()),
-            |detector, name| {
-                let detector = detector.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
-                let path = dir.join(name);
-                let image =
-                    read_frame(&path).with_context(|| format!("frame {name} of the model"))?;
-                let ellipses: Vec<Ellipse> = detector
-                    .detect(&image)
-                    .ellipses
-                    .iter()
-                    .map(|e| e.ellipse())
-                    .collect();
-                progress.inc(1);
-                Ok(ellipses)
-            },
-        )
-        .collect();
+    let paths: Vec<PathBuf> = names.iter().map(|n| dir.join(n)).collect();
+    let detected = detect_frame_files(&paths, &config, &|| progress.inc(1))
+        .context("detecting the targets of the model's frames")?;
     progress.finish_and_clear();
-    result.into_iter().collect()
+    Ok(detected)
 }
 
 /// The image size of the model's (first) camera.

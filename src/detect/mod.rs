@@ -430,3 +430,49 @@ pub fn detect_in_frame(
 ) -> Result<Detection, DetectConfigError> {
     Ok(Detector::new(config.clone())?.detect(frame))
 }
+
+/// Why the targets of a set of frame files could not be detected.
+#[derive(Debug, thiserror::Error)]
+pub enum DetectFilesError {
+    /// A bad configuration.
+    #[error(transparent)]
+    Config(#[from] DetectConfigError),
+    /// A frame could not be read.
+    #[error(transparent)]
+    Read(#[from] crate::io::ReadError),
+}
+
+/// Detects the targets of frame files in parallel (one frame in memory per worker, one
+/// [`Detector`] per worker): per file, the detected ellipses in observed pixels, in the order
+/// of `paths`. `progress` is called once per frame done.
+///
+/// # Errors
+///
+/// [`DetectFilesError`]: a bad configuration, or the first frame (in `paths` order) that cannot
+/// be read.
+pub fn detect_frame_files(
+    paths: &[std::path::PathBuf],
+    config: &DetectConfig,
+    progress: &(dyn Fn() + Sync),
+) -> Result<Vec<Vec<Ellipse>>, DetectFilesError> {
+    use rayon::prelude::*;
+    Detector::new(config.clone())?;
+    paths
+        .par_iter()
+        .map_init(
+            || Detector::new(config.clone()),
+            |detector, path| {
+                let detector = detector.as_mut().map_err(|e| e.clone())?;
+                let image = crate::io::frames::read_frame(path)?;
+                let ellipses = detector
+                    .detect(&image)
+                    .ellipses
+                    .iter()
+                    .map(DetectedEllipse::ellipse)
+                    .collect();
+                progress();
+                Ok(ellipses)
+            },
+        )
+        .collect()
+}

@@ -4,3 +4,4 @@
 pub mod calibration;
 pub mod detection;
 pub mod matching;
+pub mod pipe;
