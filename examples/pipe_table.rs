@@ -54,7 +54,11 @@ fn main() {
         site.tls.offset = [500_000.0, 5_600_000.0, 100.0];
         let dir = out.join(format!("site_{}", preset.name));
         let start = std::time::Instant::now();
-        eprintln!("{}: simulating the site into {}", preset.name, dir.display());
+        eprintln!(
+            "{}: simulating the site into {}",
+            preset.name,
+            dir.display()
+        );
         if let Err(e) = simulate_site(&options, &site, &dir, &|_| {}) {
             fail(preset.name, e);
         }

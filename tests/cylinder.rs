@@ -192,11 +192,12 @@ fn a_plane_is_not_a_cylinder() {
 }
 
 #[test]
-fn the_mug_is_among_the_cylinders_of_the_real_scan() {
-    // Not yet the acceptance (the mug as *the best* cylinder): the best-supported
-    // curved surface of this scan is a 100° arc at the near edge of the table (radius at the
-    // 0.1 m bound, 13,254 inliers); the mug comes second. Recorded here so that a change in
-    // either shows.
+fn the_mug_is_the_best_cylinder_of_the_real_scan() {
+    // The table is left out by the method's own tests, not by removing it first: its bent,
+    // noisy surface offers cylinders of 20–100 mm, but their support fills a narrow band of
+    // arc (a bent strip plus stray points far round the axis), and the refined candidates
+    // compete on every point rather than the subsample. With the default seed the mug wins;
+    // the README records that other seeds can still prefer a table artefact.
     let read = pipemeasure::io::ply::read(std::path::Path::new(
         "../shared/data/pcl_mug/table_scene_mug_stereo_textured.ply",
     ))
@@ -209,18 +210,19 @@ fn the_mug_is_among_the_cylinders_of_the_real_scan() {
         radius_max: 0.1,
         ..CylinderConfig::default()
     };
-    let all = fit_all_cylinders(&cloud, &config, 3);
-    for f in &all {
-        eprintln!(
-            "r = {:.4} m ± {:.5}, rmse {:.5} m, {} inliers",
-            f.cylinder.radius, f.radius_std, f.rmse, f.inliers
-        );
-    }
-    // PCL 1.13 (plane removed first, RANSAC with normals): 0.0388 m.
-    assert!(
-        all.iter()
-            .any(|f| (f.cylinder.radius - 0.0388).abs() < 0.001 && f.inliers > 3000),
-        "{:?}",
-        all.iter().map(|f| f.cylinder.radius).collect::<Vec<_>>()
+    let f = fit_cylinder(&cloud, &config).unwrap();
+    eprintln!(
+        "r = {:.4} m ± {:.5}, rmse {:.5} m, {} inliers",
+        f.cylinder.radius, f.radius_std, f.rmse, f.inliers
     );
+    // PCL 1.13 (plane removed first, RANSAC with normals): 0.0388 m. The mug stands on the
+    // table: its axis is along the table's normal (≈ (0, −0.84, −0.54) in this scan).
+    assert!(
+        (f.cylinder.radius - 0.0388).abs() < 0.001,
+        "{}",
+        f.cylinder.radius
+    );
+    assert!(f.inliers > 3000);
+    let table_normal = Vector3::new(0.01, -0.84, -0.54).normalize();
+    assert!(f.cylinder.direction.dot(&table_normal).abs() > 0.98);
 }

@@ -29,8 +29,19 @@ fn simulate_site(dir: &Path) -> (f64, [f64; 3]) {
     let (code, _, stderr) = pipemeasure(
         dir,
         &[
-            "simulate", "site", "--like", "p30", "--out", "site", "--width", "960", "--frames",
-            "20", "--tls-offset", &offset, "--quiet",
+            "simulate",
+            "site",
+            "--like",
+            "p30",
+            "--out",
+            "site",
+            "--width",
+            "960",
+            "--frames",
+            "20",
+            "--tls-offset",
+            &offset,
+            "--quiet",
         ],
         &[],
     );
@@ -81,7 +92,10 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         ],
     );
     assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("pipe radius") && stdout.contains("TLS reference"), "{stdout}");
+    assert!(
+        stdout.contains("pipe radius") && stdout.contains("TLS reference"),
+        "{stdout}"
+    );
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
     let r = report["radius_m"].as_f64().unwrap();
@@ -93,7 +107,10 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         radius * 1e3
     );
     assert!((r - radius).abs() < 1e-3, "radius {r} vs truth {radius}");
-    assert!((reference - radius).abs() < 0.5e-3, "TLS {reference} vs {radius}");
+    assert!(
+        (reference - radius).abs() < 0.5e-3,
+        "TLS {reference} vs {radius}"
+    );
     assert!((report["accuracy_m"].as_f64().unwrap() - (r - reference)).abs() < 1e-12);
     assert_eq!(report["frame"], "tls");
     assert_eq!(report["scale_method"], "similarity");
@@ -136,23 +153,44 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         ],
     );
     assert_eq!(code, 0, "{stderr}");
-    assert!(stdout.contains("two targets") && stdout.contains("assumed"), "{stdout}");
+    assert!(
+        stdout.contains("two targets") && stdout.contains("assumed"),
+        "{stdout}"
+    );
     let two: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("two.json")).unwrap()).unwrap();
     assert_eq!(two["frame"], "scaled");
     let r2 = two["radius_m"].as_f64().unwrap();
-    assert!((r2 - radius).abs() < 1e-3, "two-target radius {r2} vs truth {radius}");
+    assert!(
+        (r2 - radius).abs() < 1e-3,
+        "two-target radius {r2} vs truth {radius}"
+    );
 
     // Bad input, each a clear error and nothing written.
     let expect_error = |args: &[&str], code: i32, needle: &str| {
         let (c, _, stderr) = run(dir, args);
         assert_eq!(c, code, "{args:?}: {stderr}");
-        assert!(stderr.contains(needle), "{args:?}: expected `{needle}` in {stderr}");
+        assert!(
+            stderr.contains(needle),
+            "{args:?}: expected `{needle}` in {stderr}"
+        );
     };
     let cloud = "site/dense/fused.ply";
-    expect_error(&["--device", "p30", cloud, "--tls-ids", "1"], 1, "at least two");
     expect_error(
-        &["--device", "p30", cloud, "--tls-ids", "1,99", "--json", "x.json"],
+        &["--device", "p30", cloud, "--tls-ids", "1"],
+        1,
+        "at least two",
+    );
+    expect_error(
+        &[
+            "--device",
+            "p30",
+            cloud,
+            "--tls-ids",
+            "1,99",
+            "--json",
+            "x.json",
+        ],
         1,
         "`99` is not in",
     );
@@ -181,10 +219,16 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         p
     };
     let header = |n: usize| {
-        format!("ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n")
+        format!(
+            "ply\nformat ascii 1.0\nelement vertex {n}\nproperty float x\nproperty float y\nproperty float z\nend_header\n"
+        )
     };
     write("empty.ply", &header(0));
-    expect_error(&["--scale", "1", "empty.ply"], 1, "empty.ply: no finite points");
+    expect_error(
+        &["--scale", "1", "empty.ply"],
+        1,
+        "empty.ply: no finite points",
+    );
     write("nan.ply", &format!("{}nan nan nan\nnan 1 2\n", header(2)));
     expect_error(&["--scale", "1", "nan.ply"], 1, "nan.ply: no finite points");
     let plane: String = (0..2500)

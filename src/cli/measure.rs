@@ -118,7 +118,9 @@ impl Args {
 
 /// The first existing `name` in `dir`, its parent and grandparent.
 fn search_up(cloud: &Path, names: &[&str], ok: impl Fn(&Path) -> bool) -> Option<PathBuf> {
-    let dir = cloud.parent().map_or_else(|| PathBuf::from("."), Path::to_path_buf);
+    let dir = cloud
+        .parent()
+        .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
     let dir = if dir.as_os_str().is_empty() {
         PathBuf::from(".")
     } else {
@@ -180,8 +182,7 @@ fn site_intrinsics(device: &str, model: &Reconstruction) -> Result<(Intrinsics, 
     };
     let (w, h) = model_image_size(model)?;
     let profile_cam = profile.camera();
-    if u64::from(profile_cam.width) * u64::from(h) != u64::from(profile_cam.height) * u64::from(w)
-    {
+    if u64::from(profile_cam.width) * u64::from(h) != u64::from(profile_cam.height) * u64::from(w) {
         bail!(
             "device {device} ({}) is for {}x{} frames but the model's camera is {w}x{h}: another aspect ratio, so these frames are not from this device",
             path.display(),
@@ -268,7 +269,10 @@ fn scale_from_targets(
                 bail!(
                     "--tls-ids: target `{id}` is not in {} (its ids: {})",
                     tls_path.display(),
-                    tls.iter().map(|t| t.id.as_str()).collect::<Vec<_>>().join(", ")
+                    tls.iter()
+                        .map(|t| t.id.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
                 );
             }
         }
@@ -506,7 +510,10 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
         ..CylinderConfig::default()
     };
     config.validate()?;
-    let region = args.near.zip(args.within).map(|(centre, radius)| Region { centre, radius });
+    let region = args
+        .near
+        .zip(args.within)
+        .map(|(centre, radius)| Region { centre, radius });
     let points: Vec<Vector3<f64>> = read.cloud.points.iter().map(|p| p.coords).collect();
     let m = measure_pipe(&points, &scaling, region.as_ref(), &config)
         .with_context(|| format!("fitting the pipe in {}", cloud.display()))?;
@@ -578,7 +585,11 @@ fn print_summary(out: &ReportOut, args: &Args) -> Result<()> {
         d[0],
         d[1],
         d[2],
-        if out.frame == "tls" { "TLS" } else { "scaled cloud's" }
+        if out.frame == "tls" {
+            "TLS"
+        } else {
+            "scaled cloud's"
+        }
     );
     if let (Some(r), Some(a)) = (out.reference_radius_m, out.accuracy_m) {
         outln!(

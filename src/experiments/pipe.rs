@@ -176,7 +176,8 @@ pub fn run_site(
             Method::PreCalibration => (Some(&profile.intrinsics), &[]),
             Method::InSitu => (None, &[Term::C, Term::K1, Term::K2]),
         };
-        let a1 = algorithm1(&model, initial, &RefineConfig::default()).map_err(|e| e.to_string())?;
+        let a1 =
+            algorithm1(&model, initial, &RefineConfig::default()).map_err(|e| e.to_string())?;
         let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
         let (summary, intrinsics, poses) =
             adjust_feature_tracks(&model, &a1, &cameras, free, &AdjustConfig::default())

@@ -217,15 +217,23 @@ fn supports(cloud: &Cloud, k: usize, cyl: &Cylinder, threshold: f64, cos_max: f6
 /// Nearest sample neighbours the local half of the pairs draws its second point from.
 const LOCAL_NEIGHBOURS: usize = 32;
 /// Best hypotheses checked for angular coverage.
-const TOP_HYPOTHESES: usize = 50;
+const TOP_HYPOTHESES: usize = 400;
 /// Hypotheses refined before the best is chosen.
-const REFINED_HYPOTHESES: usize = 5;
+const REFINED_HYPOTHESES: usize = 12;
 /// Smallest arc (rad) of the circumference the supporting points must span (60°): a strip of
 /// a plane tangent to a large cylinder has support but no arc.
 pub const MIN_COVERAGE: f64 = std::f64::consts::FRAC_PI_3;
 
-/// The arc (rad) of the circumference spanned by the points of `idx` that support `cyl`: 2π
-/// minus the largest gap between their azimuths about the axis.
+/// Angular bins of [`normal_coverage`] (10° each).
+const COVERAGE_BINS: usize = 36;
+/// A bin is filled when it holds at least this fraction of the mean count of the non-empty
+/// bins.
+const FILLED_BIN_FRACTION: f64 = 0.2;
+
+/// The arc (rad) of the circumference the points of `idx` that support `cyl` fill: the number
+/// of filled 10° bins of their azimuths about the axis, times 10°. A span alone is not enough:
+/// a slightly bent strip of a plane (a stereo scan's table top) plus a few stray supporters on
+/// the far side spans a wide arc but fills a narrow one.
 pub fn normal_coverage(
     cloud: &Cloud,
     idx: &[usize],
@@ -234,25 +242,26 @@ pub fn normal_coverage(
     cos_max: f64,
 ) -> f64 {
     let (e1, e2) = cyl.cross_section_basis();
-    let mut az: Vec<f64> = idx
-        .iter()
-        .filter(|&&k| {
-            supports(cloud, k, cyl, point_threshold(cloud, k, threshold), cos_max).is_some()
-        })
-        .map(|&k| {
-            let u = cyl.radial(&cloud.points[k]);
-            u.dot(&e2).atan2(u.dot(&e1))
-        })
-        .collect();
-    if az.len() < 3 {
+    let mut bins = [0usize; COVERAGE_BINS];
+    for &k in idx {
+        if supports(cloud, k, cyl, point_threshold(cloud, k, threshold), cos_max).is_none() {
+            continue;
+        }
+        let u = cyl.radial(&cloud.points[k]);
+        let turn = u.dot(&e2).atan2(u.dot(&e1)) / std::f64::consts::TAU + 0.5;
+        let bin = ((turn * COVERAGE_BINS as f64) as usize).min(COVERAGE_BINS - 1);
+        bins[bin] += 1;
+    }
+    let non_empty = bins.iter().filter(|&&c| c > 0).count();
+    if non_empty == 0 || bins.iter().sum::<usize>() < 3 {
         return 0.0;
     }
-    az.sort_by(f64::total_cmp);
-    let mut gap = az[0] + std::f64::consts::TAU - az[az.len() - 1];
-    for w in az.windows(2) {
-        gap = gap.max(w[1] - w[0]);
-    }
-    std::f64::consts::TAU - gap
+    let mean = bins.iter().sum::<usize>() as f64 / non_empty as f64;
+    let filled = bins
+        .iter()
+        .filter(|&&c| c as f64 >= FILLED_BIN_FRACTION * mean)
+        .count();
+    filled as f64 * std::f64::consts::TAU / COVERAGE_BINS as f64
 }
 
 /// RMS distance of the points `idx` from their least-squares plane.
@@ -352,6 +361,7 @@ pub fn fit_cylinder_among(
         best,
         required: config.min_inliers,
     };
+    let cos_max = config.max_normal_angle.cos();
     if candidates.len() < config.min_inliers.max(3) {
         return Err(not_found(0));
     }
@@ -391,7 +401,6 @@ pub fn fit_cylinder_among(
             (sample[a], sample[b])
         })
         .collect();
-    let cos_max = config.max_normal_angle.cos();
     // The floor of every point's threshold: 3 × the cloud's typical local noise.
     let threshold = (3.0 * cloud.surface_noise).max(1e-6);
     // Step 2: MSAC over the subsample, hypotheses in parallel, ties broken by index.
@@ -421,13 +430,23 @@ pub fn fit_cylinder_among(
     // The best few hypotheses whose supporting normals turn around the axis (a strip of a
     // plane tangent to a large cylinder has support but one normal direction), each refined
     // on its sample support; the one with the least MSAC cost after refinement wins.
+    // The refined candidates compete on every candidate point, not the subsample: a small
+    // object (a mug: 3 % of a scan) has too few sample points for the sample's cost to rank it
+    // reliably against artefacts of similar support.
     let msac = |c: &Cylinder| -> f64 {
-        sample
-            .iter()
-            .map(|&k| {
-                let t = point_threshold(cloud, k, threshold);
-                supports(cloud, k, c, t, cos_max).map_or(1.0, |e| (e / t).powi(2))
+        candidates
+            .par_chunks(4096)
+            .map(|chunk| {
+                chunk
+                    .iter()
+                    .map(|&k| {
+                        let t = point_threshold(cloud, k, threshold);
+                        supports(cloud, k, c, t, cos_max).map_or(1.0, |e| (e / t).powi(2))
+                    })
+                    .sum::<f64>()
             })
+            .collect::<Vec<f64>>()
+            .iter()
             .sum()
     };
     let select = |c: &Cylinder, pool: &[usize]| -> Vec<usize> {

@@ -14,9 +14,9 @@ pub use cylinder::{
     Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_all_cylinders, fit_cylinder,
     fit_cylinder_among,
 };
-pub use scale::{ReconstructedTarget, ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};
-pub use targets::{SiteTargets, match_site_targets};
 pub use pipe::{
     PipeMeasurement, Reference, Region, Scaling, fit_points, measure_pipe, reference_fit,
     transformed_points,
 };
+pub use scale::{ReconstructedTarget, ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};
+pub use targets::{SiteTargets, match_site_targets};
