@@ -215,7 +215,7 @@ pub fn run_site(
             .collect();
         let camera = BrownCamera {
             intrinsics,
-            ..profile.clone()
+            ..profile
         };
         let cloud = fuse(&dense, &camera, &frame_poses);
         let points: Vec<Vector3<f64>> = cloud.points.iter().map(|p| p.coords).collect();
