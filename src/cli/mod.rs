@@ -18,6 +18,7 @@ macro_rules! out {
 }
 
 mod calibrate;
+mod demo;
 mod detect;
 mod fit_cylinder;
 mod matching;
@@ -59,6 +60,9 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Run the whole product on simulated data: calibrate a simulated phone, measure a
+    /// simulated pipe with the new profile and in situ, compare with the truth.
+    Demo(demo::Args),
     /// Undistort frames with a device profile into a pinhole camera, writing PNG frames and a
     /// COLMAP cameras.txt.
     Undistort(undistort::Args),
@@ -119,6 +123,7 @@ pub fn main() -> ExitCode {
 
 fn run(command: Command, globals: Globals) -> Result<()> {
     match command {
+        Command::Demo(args) => demo::run(&args, globals),
         Command::Undistort(args) => undistort::run(&args, globals),
         Command::Detect(args) => detect::run(&args, globals),
         Command::Match(args) => matching::run(&args, globals),
