@@ -44,6 +44,7 @@ use clap::{Parser, Subcommand};
     version,
     about,
     long_about = None,
+    after_help = "Main job: `pipemeasure --device NAME CLOUD.ply` measures the pipe in a site's dense cloud.\nFirst time? `pipemeasure demo` runs the whole product on simulated data.",
     subcommand_negates_reqs = true
 )]
 pub struct Cli {
