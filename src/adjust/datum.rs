@@ -37,6 +37,16 @@ pub struct Similarity {
 }
 
 impl Similarity {
+    /// The identity (scale 1, no rotation, no translation).
+    #[must_use]
+    pub fn identity() -> Self {
+        Similarity {
+            scale: 1.0,
+            rotation: UnitQuaternion::identity(),
+            translation: Vector3::zeros(),
+        }
+    }
+
     /// Applies the similarity to a point.
     #[must_use]
     pub fn apply(&self, x: &Vector3<f64>) -> Vector3<f64> {

@@ -1,11 +1,13 @@
 //! `pipemeasure fit-cylinder CLOUD.ply [--json] [--radius-min M --radius-max M] [--all]
 //! [--near X,Y,Z --within M] [--axis-hint X,Y,Z]`: the robust cylinder fit alone.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use nalgebra::Vector3;
-use pipemeasure::measure::{Cloud, CylinderConfig, CylinderFit, fit_all_cylinders, fit_cylinder};
+use pipemeasure::measure::{
+    Cloud, CylinderConfig, CylinderFit, Region, fit_all_cylinders, fit_cylinder,
+};
 use serde::Serialize;
 
 use super::Globals;
@@ -19,39 +21,79 @@ pub struct Args {
     /// (with `--all`, one such object per line).
     #[arg(long)]
     json: bool,
+    /// Report every cylinder found (fitted and removed in turn), best supported first.
+    #[arg(long)]
+    all: bool,
+    #[command(flatten)]
+    search: SearchArgs,
+}
+
+/// The cylinder search's options, shared by `fit-cylinder` and the main command.
+#[derive(Debug, Default, clap::Args)]
+pub struct SearchArgs {
     /// Smallest radius to accept (m).
     #[arg(long, default_value_t = 0.005)]
     radius_min: f64,
     /// Largest radius to accept (m).
     #[arg(long, default_value_t = 1.0)]
     radius_max: f64,
-    /// Report every cylinder found (fitted and removed in turn), best supported first.
-    #[arg(long)]
-    all: bool,
-    /// Keep only points near this point (`X,Y,Z`, cloud units), with `--within`.
+    /// Keep only points near this point (`X,Y,Z`), with `--within`. For the main command in the
+    /// measured frame: TLS coordinates when the targets give a similarity.
     #[arg(long, value_parser = parse_vec3)]
-    near: Option<Vector3<f64>>,
+    pub near: Option<Vector3<f64>>,
     /// Radius of the region of interest around `--near` (m).
     #[arg(long)]
-    within: Option<f64>,
+    pub within: Option<f64>,
     /// Only axes within 20° of this direction (`X,Y,Z`).
     #[arg(long, value_parser = parse_vec3)]
-    axis_hint: Option<Vector3<f64>>,
-    /// Seed of the sampling.
+    pub axis_hint: Option<Vector3<f64>>,
+    /// Seed of the cylinder sampling.
     #[arg(long, default_value_t = 1)]
     seed: u64,
 }
 
-pub(super) fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|t| t.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|_| format!("`{s}`: expected X,Y,Z"))?;
-    match v.as_slice() {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok(Vector3::new(*x, *y, *z)),
-        _ => Err(format!("`{s}`: expected three finite numbers X,Y,Z")),
+impl SearchArgs {
+    /// The region of interest, if `--near` and `--within` are given (one without the other is
+    /// an error).
+    pub fn region(&self) -> Result<Option<Region>> {
+        match (self.near, self.within) {
+            (Some(centre), Some(radius)) => Ok(Some(Region { centre, radius })),
+            (None, None) => Ok(None),
+            _ => bail!("--near and --within go together"),
+        }
     }
+
+    /// The fitting configuration, checked.
+    pub fn config(&self) -> Result<CylinderConfig> {
+        let config = CylinderConfig {
+            radius_min: self.radius_min,
+            radius_max: self.radius_max,
+            axis_hint: self.axis_hint.map(|h| (h.normalize(), 20f64.to_radians())),
+            seed: self.seed,
+            ..CylinderConfig::default()
+        };
+        config.validate()?;
+        Ok(config)
+    }
+}
+
+/// The finite points of a PLY or E57 cloud; none at all is an error naming the file.
+pub(super) fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>> {
+    let read = pipemeasure::io::e57::read_cloud(path)?;
+    if read.cloud.points.is_empty() {
+        bail!(
+            "{}: no finite points ({} vertices, {} not finite)",
+            path.display(),
+            read.vertices_in_file,
+            read.skipped_non_finite
+        );
+    }
+    Ok(read.cloud.points.iter().map(|p| p.coords).collect())
+}
+
+/// Parses `X,Y,Z` into a vector.
+pub(super) fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
+    super::simulate::parse_xyz(s).map(Vector3::from)
 }
 
 #[derive(Serialize)]
@@ -84,31 +126,13 @@ fn out_of(f: &CylinderFit) -> FitOut {
 }
 
 pub fn run(args: &Args, _globals: Globals) -> Result<()> {
-    if args.near.is_some() != args.within.is_some() {
-        bail!("--near and --within go together");
-    }
-    let read = pipemeasure::io::e57::read_cloud(&args.cloud)?;
-    let mut points: Vec<Vector3<f64>> = read.cloud.points.iter().map(|p| p.coords).collect();
-    if points.is_empty() {
-        bail!(
-            "{}: no finite points ({} vertices, {} not finite)",
-            args.cloud.display(),
-            read.vertices_in_file,
-            read.skipped_non_finite
-        );
-    }
-    if let (Some(c), Some(r)) = (args.near, args.within) {
-        points.retain(|p| (p - c).norm() <= r);
+    let region = args.search.region()?;
+    let mut points = read_points(&args.cloud)?;
+    if let Some(r) = &region {
+        points.retain(|p| r.contains(p));
     }
     let cloud = Cloud::new(&points).with_context(|| format!("{}", args.cloud.display()))?;
-    let config = CylinderConfig {
-        radius_min: args.radius_min,
-        radius_max: args.radius_max,
-        axis_hint: args.axis_hint.map(|h| (h.normalize(), 20f64.to_radians())),
-        seed: args.seed,
-        ..CylinderConfig::default()
-    };
-    config.validate()?;
+    let config = args.search.config()?;
     let fits = if args.all {
         let all = fit_all_cylinders(&cloud, &config, 16);
         if all.is_empty() {

@@ -12,25 +12,24 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use nalgebra::{Point3, Vector3};
+use nalgebra::Point3;
 use pipemeasure::calibrate::matching::MatchConfig;
 use pipemeasure::calibrate::refine::{RefineConfig, algorithm1};
 use pipemeasure::camera::Intrinsics;
 use pipemeasure::camera::convert::{ColmapModel, brown_from_colmap};
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::colmap::Reconstruction;
-use pipemeasure::io::e57::read_cloud;
 use pipemeasure::io::ply::PointCloud;
 use pipemeasure::io::tls::read_targets;
 use pipemeasure::measure::{
-    CylinderConfig, PipeMeasurement, Reference, Region, ScaleConfig, ScaleEstimate, Scaling,
-    estimate_scale, match_site_targets, measure_pipe, reference_fit,
+    PipeMeasurement, Reference, ScaleConfig, ScaleEstimate, Scaling, estimate_scale,
+    match_site_targets, measure_pipe, reference_fit,
 };
 use pipemeasure::profile::load_device;
 use serde::Serialize;
 
 use super::Globals;
-use super::fit_cylinder::parse_vec3;
+use super::fit_cylinder::{SearchArgs, read_points};
 use super::matching::{detect_named_frames, model_image_size};
 
 /// Arguments of the main command (given without a subcommand).
@@ -68,28 +67,11 @@ pub struct Args {
     /// Write the pipe's inliers, coloured by residual (blue inside, red outside), as PLY.
     #[arg(long)]
     ply_out: Option<PathBuf>,
-    /// Smallest pipe radius to accept (m).
-    #[arg(long, default_value_t = 0.005)]
-    radius_min: f64,
-    /// Largest pipe radius to accept (m).
-    #[arg(long, default_value_t = 1.0)]
-    radius_max: f64,
-    /// Pick the pipe near this point (`X,Y,Z` in the measured frame: TLS coordinates when the
-    /// targets give a similarity), with `--within`.
-    #[arg(long, value_parser = parse_vec3)]
-    near: Option<Vector3<f64>>,
-    /// Radius of the region of interest around `--near` (m).
-    #[arg(long)]
-    within: Option<f64>,
-    /// Only pipes whose axis is within 20° of this direction (`X,Y,Z`).
-    #[arg(long, value_parser = parse_vec3)]
-    axis_hint: Option<Vector3<f64>>,
+    #[command(flatten)]
+    search: SearchArgs,
     /// Smallest semi-minor axis of a target to use (px).
     #[arg(long, default_value_t = 4.0)]
     min_semi_minor: f64,
-    /// Seed of the cylinder sampling.
-    #[arg(long, default_value_t = 1)]
-    seed: u64,
 }
 
 impl Args {
@@ -106,9 +88,9 @@ impl Args {
             ("--scale", self.scale.is_some()),
             ("--json", self.json.is_some()),
             ("--ply-out", self.ply_out.is_some()),
-            ("--near", self.near.is_some()),
-            ("--within", self.within.is_some()),
-            ("--axis-hint", self.axis_hint.is_some()),
+            ("--near", self.search.near.is_some()),
+            ("--within", self.search.within.is_some()),
+            ("--axis-hint", self.search.axis_hint.is_some()),
         ]
         .into_iter()
         .filter_map(|(name, given)| given.then_some(name))
@@ -118,13 +100,9 @@ impl Args {
 
 /// The first existing `name` in `dir`, its parent and grandparent.
 fn search_up(cloud: &Path, names: &[&str], ok: impl Fn(&Path) -> bool) -> Option<PathBuf> {
-    let dir = cloud
-        .parent()
-        .map_or_else(|| PathBuf::from("."), Path::to_path_buf);
-    let dir = if dir.as_os_str().is_empty() {
-        PathBuf::from(".")
-    } else {
-        dir
+    let dir = match cloud.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
     };
     dir.ancestors()
         .take(3)
@@ -482,18 +460,8 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
             eprintln!("{s}");
         }
     };
-    if args.near.is_some() != args.within.is_some() {
-        bail!("--near and --within go together");
-    }
-    let read = read_cloud(cloud)?;
-    if read.cloud.points.is_empty() {
-        bail!(
-            "{}: no finite points ({} vertices, {} not finite)",
-            cloud.display(),
-            read.vertices_in_file,
-            read.skipped_non_finite
-        );
-    }
+    let region = args.search.region()?;
+    let points = read_points(cloud)?;
     let (scaling, targets) = match args.scale {
         Some(s) if s.is_finite() && s > 0.0 => (Scaling::Given(s), None),
         Some(s) => bail!("--scale {s}: must be a positive number"),
@@ -502,25 +470,12 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
             (Scaling::Targets(t.estimate.clone()), Some(t))
         }
     };
-    let config = CylinderConfig {
-        radius_min: args.radius_min,
-        radius_max: args.radius_max,
-        axis_hint: args.axis_hint.map(|h| (h.normalize(), 20f64.to_radians())),
-        seed: args.seed,
-        ..CylinderConfig::default()
-    };
-    config.validate()?;
-    let region = args
-        .near
-        .zip(args.within)
-        .map(|(centre, radius)| Region { centre, radius });
-    let points: Vec<Vector3<f64>> = read.cloud.points.iter().map(|p| p.coords).collect();
+    let config = args.search.config()?;
     let m = measure_pipe(&points, &scaling, region.as_ref(), &config)
         .with_context(|| format!("fitting the pipe in {}", cloud.display()))?;
     let reference = match &args.tls_scan {
         Some(path) => {
-            let scan = read_cloud(path)?;
-            let scan: Vec<Vector3<f64>> = scan.cloud.points.iter().map(|p| p.coords).collect();
+            let scan = read_points(path)?;
             Some(
                 reference_fit(&scan, &m, scaling.in_tls_frame(), &config)
                     .with_context(|| format!("fitting the same pipe in {}", path.display()))?,

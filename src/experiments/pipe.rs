@@ -22,7 +22,7 @@ use std::path::Path;
 use nalgebra::{Point3, Vector3};
 use serde::Serialize;
 
-use crate::adjust::AdjustConfig;
+use crate::adjust::{AdjustConfig, Similarity};
 use crate::calibrate::matching::MatchConfig;
 use crate::calibrate::pipeline::{adjust_feature_tracks, refresh_pairs};
 use crate::calibrate::refine::{RefineConfig, algorithm1};
@@ -150,7 +150,7 @@ pub fn run_site(
     };
     let scan_points: Vec<Vector3<f64>> = scan.cloud.points.iter().map(|p| p.coords).collect();
     let tls_fit = fit_points(
-        &transformed_points(&scan_points, &identity(), Some(&region)),
+        &transformed_points(&scan_points, &Similarity::identity(), Some(&region)),
         &config,
     )
     .map_err(|e| format!("TLS scan: {e}"))?;
@@ -264,12 +264,4 @@ pub fn run_site(
         image_size: size,
         rows,
     })
-}
-
-fn identity() -> crate::adjust::Similarity {
-    crate::adjust::Similarity {
-        scale: 1.0,
-        rotation: nalgebra::UnitQuaternion::identity(),
-        translation: Vector3::zeros(),
-    }
 }

@@ -3,7 +3,7 @@
 //! the pipe of interest fitted, its radius σ combining the fit's and the scale's, and with a TLS
 //! scan the same pipe fitted there as the reference.
 
-use nalgebra::{UnitQuaternion, Vector3};
+use nalgebra::Vector3;
 
 use super::cloud::Cloud;
 use super::cylinder::{CylinderConfig, CylinderError, CylinderFit, fit_cylinder_among};
@@ -40,8 +40,7 @@ impl Scaling {
             }) => s.similarity,
             _ => Similarity {
                 scale: self.scale().0,
-                rotation: UnitQuaternion::identity(),
-                translation: Vector3::zeros(),
+                ..Similarity::identity()
             },
         }
     }
@@ -67,6 +66,14 @@ pub struct Region {
     pub centre: Vector3<f64>,
     /// Radius.
     pub radius: f64,
+}
+
+impl Region {
+    /// Whether `p` lies in the region.
+    #[must_use]
+    pub fn contains(&self, p: &Vector3<f64>) -> bool {
+        (p - self.centre).norm() <= self.radius
+    }
 }
 
 /// The measured pipe.
@@ -106,7 +113,7 @@ pub fn transformed_points(
         .iter()
         .filter(|p| p.iter().all(|v| v.is_finite()))
         .map(|p| t.apply(p))
-        .filter(|p| region.is_none_or(|r| (p - r.centre).norm() <= r.radius))
+        .filter(|p| region.is_none_or(|r| r.contains(p)))
         .collect()
 }
 
@@ -190,15 +197,7 @@ pub fn reference_fit(
     } else {
         None
     };
-    let points = transformed_points(
-        scan,
-        &Similarity {
-            scale: 1.0,
-            rotation: UnitQuaternion::identity(),
-            translation: Vector3::zeros(),
-        },
-        region.as_ref(),
-    );
+    let points = transformed_points(scan, &Similarity::identity(), region.as_ref());
     let fit = fit_points(&points, &config)?;
     Ok(Reference {
         accuracy: r - fit.cylinder.radius,
