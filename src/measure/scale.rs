@@ -234,37 +234,28 @@ fn similarity_scale(
     tls: &[Point3<f64>],
     associated: &[(usize, usize)],
 ) -> Option<SimilarityScale> {
-    // Around the TLS targets' first point: survey coordinates can be 1e6 m.
-    let origin = tls[associated[0].1].coords;
-    let from: Vec<Vector3<f64>> = associated
+    let from: Vec<Point3<f64>> = associated
         .iter()
-        .map(|&(r, _)| reconstructed[r].point.coords)
+        .map(|&(r, _)| reconstructed[r].point)
         .collect();
-    let to: Vec<Vector3<f64>> = associated
-        .iter()
-        .map(|&(_, t)| tls[t].coords - origin)
-        .collect();
-    let mut sim = similarity_from_points(&from, &to)?;
+    let to: Vec<Point3<f64>> = associated.iter().map(|&(_, t)| tls[t]).collect();
+    let sim = local_similarity(&from, &to)?;
     let residuals: Vec<f64> = from
         .iter()
         .zip(&to)
-        .map(|(x, y)| (sim.apply(x) - y).norm())
+        .map(|(x, y)| (sim.apply(&x.coords) - y.coords).norm())
         .collect();
     let n = associated.len();
     let ss: f64 = residuals.iter().map(|r| r * r).sum();
-    let mean = from.iter().sum::<Vector3<f64>>() / n as f64;
-    // Spread of the reconstructed targets in TLS units.
-    let spread: f64 = from
-        .iter()
-        .map(|x| (sim.scale * (x - mean)).norm_squared())
-        .sum();
+    let mean = from.iter().map(|x| x.coords).sum::<Vector3<f64>>() / n as f64;
+    // Spread of the reconstructed targets (SfM units).
+    let spread: f64 = from.iter().map(|x| (x.coords - mean).norm_squared()).sum();
     let redundancy = 3 * n - 7;
     let scale_std = if redundancy > 0 && spread > 0.0 {
-        sim.scale * (ss / redundancy as f64).sqrt() / spread.sqrt()
+        (ss / redundancy as f64).sqrt() / spread.sqrt()
     } else {
         f64::NAN
     };
-    sim.translation += origin;
     Some(SimilarityScale {
         scale: sim.scale,
         scale_std,
@@ -310,7 +301,7 @@ fn associate(
                             if !close(d_tls(b, c), djk) || !close(d_tls(a, c), dik) {
                                 continue;
                             }
-                            let Some(sim) = triple_similarity(&p, [tls[a], tls[b], tls[c]]) else {
+                            let Some(sim) = local_similarity(&p, &[tls[a], tls[b], tls[c]]) else {
                                 continue;
                             };
                             let (pairs, ss) = consensus(reconstructed, tls, &sim, tol * spacing);
@@ -339,11 +330,6 @@ fn associate(
     }
     best.sort_unstable();
     best
-}
-
-/// The similarity of three point pairs, computed around the TLS triple's first point.
-fn triple_similarity(from: &[Point3<f64>; 3], to: [Point3<f64>; 3]) -> Option<Similarity> {
-    local_similarity(from, &to)
 }
 
 /// Umeyama around the first target point (large survey coordinates), returned in absolute
