@@ -20,6 +20,7 @@ macro_rules! out {
 mod calibrate;
 mod demo;
 mod detect;
+mod experiments;
 mod fit_cylinder;
 mod matching;
 mod measure;
@@ -64,6 +65,9 @@ enum Command {
     /// Run the whole product on simulated data: calibrate a simulated phone, measure a
     /// simulated pipe with the new profile and in situ, compare with the truth.
     Demo(demo::Args),
+    /// Rerun the paper's experiments on simulated data (Fig. 7, Fig. 8, Table II, Table III),
+    /// writing each table as Markdown and JSON and each figure as SVG.
+    Experiments(experiments::Args),
     /// Undistort frames with a device profile into a pinhole camera, writing PNG frames and a
     /// COLMAP cameras.txt.
     Undistort(undistort::Args),
@@ -125,6 +129,7 @@ pub fn main() -> ExitCode {
 fn run(command: Command, globals: Globals) -> Result<()> {
     match command {
         Command::Demo(args) => demo::run(&args, globals),
+        Command::Experiments(args) => experiments::run(&args, globals),
         Command::Undistort(args) => undistort::run(&args, globals),
         Command::Detect(args) => detect::run(&args, globals),
         Command::Match(args) => matching::run(&args, globals),

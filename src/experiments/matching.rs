@@ -229,16 +229,39 @@ pub fn score(prepared: &Prepared, matching: &Matching) -> MatchScores {
     let all = n * n.saturating_sub(1) / 2 - same_frame;
     s.fn_ = positives.saturating_sub(s.tp);
     s.tn = all.saturating_sub(s.tp + s.fp + s.fn_);
-    let ratio = |a: u64, b: u64| if b == 0 { 0.0 } else { a as f64 / b as f64 };
-    s.precision = ratio(s.tp, s.tp + s.fp);
-    s.recall = ratio(s.tp, s.tp + s.fn_);
-    s.accuracy = ratio(s.tp + s.tn, all);
-    s.f_measure = if s.precision + s.recall > 0.0 {
-        2.0 * s.precision * s.recall / (s.precision + s.recall)
-    } else {
-        0.0
-    };
-    s
+    s.with_rates()
+}
+
+impl MatchScores {
+    /// Precision, recall, accuracy and F-measure from the four counts.
+    #[must_use]
+    pub fn with_rates(mut self) -> Self {
+        let ratio = |a: u64, b: u64| if b == 0 { 0.0 } else { a as f64 / b as f64 };
+        self.precision = ratio(self.tp, self.tp + self.fp);
+        self.recall = ratio(self.tp, self.tp + self.fn_);
+        self.accuracy = ratio(self.tp + self.tn, self.tp + self.tn + self.fp + self.fn_);
+        self.f_measure = if self.precision + self.recall > 0.0 {
+            2.0 * self.precision * self.recall / (self.precision + self.recall)
+        } else {
+            0.0
+        };
+        self
+    }
+
+    /// The counts of `self` and `other` summed, rates recomputed (tracks summed too).
+    #[must_use]
+    pub fn plus(&self, other: &MatchScores) -> MatchScores {
+        MatchScores {
+            tp: self.tp + other.tp,
+            fp: self.fp + other.fp,
+            fn_: self.fn_ + other.fn_,
+            tn: self.tn + other.tn,
+            tracks: self.tracks + other.tracks,
+            mixed_tracks: self.mixed_tracks + other.mixed_tracks,
+            ..MatchScores::default()
+        }
+        .with_rates()
+    }
 }
 
 /// Centre accuracy of matched views whose true eccentricity exceeds a threshold.
@@ -298,4 +321,209 @@ pub fn centre_scores(
         s.improvement = s.fitted_rms_px / s.corrected_rms_px.max(1e-300);
     }
     s
+}
+
+/// Table II's runs: simulated labs per device preset, matched with each setting.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Table2Options {
+    /// Device presets.
+    pub devices: Vec<String>,
+    /// Frames per lab.
+    pub frames: usize,
+    /// Frame width (16:9).
+    pub width: u32,
+    /// Seed.
+    pub seed: u64,
+}
+
+impl Default for Table2Options {
+    /// The paper's 270 frames: 90 frames of 3840×2160 per preset.
+    fn default() -> Self {
+        Table2Options {
+            devices: vec!["p30".into(), "iphone11".into(), "s10".into()],
+            frames: 90,
+            width: 3840,
+            seed: 1,
+        }
+    }
+}
+
+/// One setting on one device.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DeviceScores {
+    /// Device preset.
+    pub device: String,
+    /// Table II's metrics.
+    pub scores: MatchScores,
+    /// Centre accuracy of views with true eccentricity over 0.5 px.
+    pub centres: CentreScores,
+}
+
+/// One row of Table II.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Table2Row {
+    /// The setting's name.
+    pub setting: String,
+    /// Per device.
+    pub devices: Vec<DeviceScores>,
+    /// Over all devices.
+    pub total: MatchScores,
+    /// The paper's F-measure for this setting (Table II, real data).
+    pub paper_f_measure: f64,
+}
+
+/// Table II.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Table2 {
+    /// How it was run.
+    pub options: Table2Options,
+    /// Frames and detections per device.
+    pub detections: Vec<(String, usize, usize)>,
+    /// The three settings.
+    pub rows: Vec<Table2Row>,
+}
+
+/// The paper's three settings: Algorithm 2 without robust triangulation, with it, and with it
+/// and Algorithm 3's centres, each with the paper's F-measure.
+#[must_use]
+pub fn table2_settings() -> [(&'static str, MatchConfig, f64); 3] {
+    [
+        (
+            "Algorithm 2 without robust triangulation",
+            MatchConfig {
+                robust_triangulation: false,
+                correct_before_triangulation: false,
+                correct_centres: false,
+                ..MatchConfig::default()
+            },
+            0.9471,
+        ),
+        (
+            "with robust triangulation",
+            MatchConfig {
+                correct_before_triangulation: false,
+                correct_centres: false,
+                ..MatchConfig::default()
+            },
+            0.9675,
+        ),
+        (
+            "with robust triangulation and corrected centres",
+            MatchConfig::default(),
+            0.9840,
+        ),
+    ]
+}
+
+/// Runs Table II: per device, a simulated lab ([`prepare`]), then each setting.
+///
+/// # Errors
+///
+/// A message naming the device whose scenario failed.
+pub fn table2(options: &Table2Options, log: &dyn Fn(&str)) -> Result<Table2, String> {
+    let settings = table2_settings();
+    let mut rows: Vec<Table2Row> = settings
+        .iter()
+        .map(|(name, _, paper)| Table2Row {
+            setting: (*name).to_string(),
+            devices: Vec::new(),
+            total: MatchScores::default(),
+            paper_f_measure: *paper,
+        })
+        .collect();
+    let mut detections = Vec::new();
+    for device in &options.devices {
+        let scenario = Scenario {
+            options: SimulateOptions {
+                device: device.clone(),
+                width: options.width,
+                height: options.width * 9 / 16,
+                seed: options.seed,
+                ..SimulateOptions::default()
+            },
+            lab: LabConfig {
+                frames: options.frames,
+                ..LabConfig::default()
+            },
+            ..Scenario::default()
+        };
+        let prepared = prepare(&scenario).map_err(|e| format!("{device}: {e}"))?;
+        let n: usize = prepared.observations.iter().map(Vec::len).sum();
+        log(&format!(
+            "{device}: {} frames, {n} detections, {} pairs, Algorithm 1 σ {:.2} px",
+            prepared.cameras.len(),
+            prepared.algorithm1.pairs.len(),
+            prepared.algorithm1.reprojection_sigma
+        ));
+        detections.push((device.clone(), prepared.cameras.len(), n));
+        for ((_, config, _), row) in settings.iter().zip(&mut rows) {
+            let m = run(&prepared, config);
+            let scores = score(&prepared, &m);
+            let centres = centre_scores(&prepared, &m, 0.5);
+            log(&format!(
+                "  {}: TP {} FP {} FN {}, F {:.4}; centres {:.3} → {:.4} px",
+                row.setting,
+                scores.tp,
+                scores.fp,
+                scores.fn_,
+                scores.f_measure,
+                centres.fitted_rms_px,
+                centres.corrected_rms_px
+            ));
+            row.total = row.total.plus(&scores);
+            row.devices.push(DeviceScores {
+                device: device.clone(),
+                scores,
+                centres,
+            });
+        }
+    }
+    Ok(Table2 {
+        options: options.clone(),
+        detections,
+        rows,
+    })
+}
+
+impl Table2 {
+    /// The table over all devices, beside the paper's F-measure, and the corrected-centre
+    /// accuracy per device, as Markdown.
+    #[must_use]
+    pub fn markdown(&self) -> String {
+        let pct = |x: f64| format!("{:.2} %", 100.0 * x);
+        let mut md = String::from(
+            "| setting | TP | FP | FN | precision | recall | accuracy | F-measure | paper's F |\n| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |\n",
+        );
+        for r in &self.rows {
+            let t = &r.total;
+            md.push_str(&format!(
+                "| {} | {} | {} | {} | {} | {} | {:.4} % | {} | {} |\n",
+                r.setting,
+                t.tp,
+                t.fp,
+                t.fn_,
+                pct(t.precision),
+                pct(t.recall),
+                100.0 * t.accuracy,
+                pct(t.f_measure),
+                pct(r.paper_f_measure)
+            ));
+        }
+        if let Some(last) = self.rows.last() {
+            md.push_str(
+                "\nCentres of views with true eccentricity over 0.5 px (last setting), RMS distance from the image of the true centre:\n\n| device | views | fitted (px) | corrected (px) | improvement |\n| --- | ---: | ---: | ---: | ---: |\n",
+            );
+            for d in &last.devices {
+                md.push_str(&format!(
+                    "| {} | {} | {:.3} | {:.4} | {:.1}x |\n",
+                    d.device,
+                    d.centres.views,
+                    d.centres.fitted_rms_px,
+                    d.centres.corrected_rms_px,
+                    d.centres.improvement
+                ));
+            }
+        }
+        md
+    }
 }

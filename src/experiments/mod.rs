@@ -3,5 +3,6 @@
 
 pub mod calibration;
 pub mod detection;
+pub mod eccentricity;
 pub mod matching;
 pub mod pipe;

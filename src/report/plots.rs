@@ -278,6 +278,101 @@ pub fn image_map(
     })
 }
 
+/// Line series with markers against a shared x axis, with a legend in the headroom above the
+/// data; `log_y` draws the y axis logarithmically (values ≤ 0 are left out there). For the
+/// experiments' figures.
+///
+/// # Errors
+/// [`ReportError`] when drawing or writing fails.
+pub fn line_chart(
+    path: &Path,
+    title: &str,
+    axes: (&str, &str),
+    series: &[(&str, Vec<(f64, f64)>)],
+    log_y: bool,
+) -> Result<(), ReportError> {
+    let what = "the line chart";
+    let points = || {
+        series
+            .iter()
+            .flat_map(|(_, s)| s.iter())
+            .filter(|p| p.0.is_finite() && p.1.is_finite() && (!log_y || p.1 > 0.0))
+    };
+    let (x_lo, x_hi) = points().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+        (lo.min(p.0), hi.max(p.0))
+    });
+    let (y_lo, y_hi) = points().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+        (lo.min(p.1), hi.max(p.1))
+    });
+    if !(x_lo.is_finite() && y_lo.is_finite()) {
+        return Err(ReportError::Draw {
+            what,
+            message: format!("{title}: no finite points to draw"),
+        });
+    }
+    let x_pad = 0.03 * (x_hi - x_lo).max(1.0);
+    let x_range = x_lo - x_pad..x_hi + x_pad;
+    let colours = [BLUE, RED, GREEN, MAGENTA, CYAN, BLACK];
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (900, 560)).into_drawing_area();
+        root.fill(&WHITE).map_err(draw_err(what))?;
+        let mut builder = ChartBuilder::on(&root);
+        builder
+            .caption(title, ("sans-serif", 18))
+            .margin(12)
+            .x_label_area_size(40)
+            .y_label_area_size(70);
+        // Two coordinate types; the drawing below is the same for both.
+        macro_rules! draw {
+            ($chart:expr, $keep:expr) => {{
+                let mut chart = $chart;
+                chart
+                    .configure_mesh()
+                    .x_desc(axes.0)
+                    .y_desc(axes.1)
+                    .draw()
+                    .map_err(draw_err(what))?;
+                for (k, (name, s)) in series.iter().enumerate() {
+                    let colour = colours[k % colours.len()];
+                    let kept: Vec<(f64, f64)> = s.iter().copied().filter($keep).collect();
+                    chart
+                        .draw_series(LineSeries::new(kept.clone(), colour.stroke_width(2)))
+                        .map_err(draw_err(what))?
+                        .label(*name)
+                        .legend(move |(x, y)| {
+                            PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+                        });
+                    chart
+                        .draw_series(kept.iter().map(|&p| Circle::new(p, 3, colour.filled())))
+                        .map_err(draw_err(what))?;
+                }
+                chart
+                    .configure_series_labels()
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .position(SeriesLabelPosition::UpperRight)
+                    .draw()
+                    .map_err(draw_err(what))?;
+            }};
+        }
+        if log_y {
+            let chart = builder
+                .build_cartesian_2d(x_range, (y_lo / 1.5..y_hi * 6.0).log_scale())
+                .map_err(draw_err(what))?;
+            draw!(chart, |p: &(f64, f64)| p.1 > 0.0 && p.1.is_finite());
+        } else {
+            let y_pad = 0.05 * (y_hi - y_lo).max(1e-9);
+            let chart = builder
+                .build_cartesian_2d(x_range, (y_lo.min(0.0) - y_pad)..y_hi + 8.0 * y_pad)
+                .map_err(draw_err(what))?;
+            draw!(chart, |p: &(f64, f64)| p.1.is_finite());
+        }
+        root.present().map_err(draw_err(what))?;
+    }
+    finish(path, &svg)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -299,5 +394,19 @@ mod tests {
         let m = dir.path().join("map.svg");
         image_map(&m, (100, 50), &[vec![0.0, 1.0], vec![2.0, 3.0]], "σ", "px").unwrap();
         assert!(std::fs::read_to_string(&m).unwrap().contains("<rect"));
+    }
+    #[test]
+    fn line_chart_draws_each_series_and_refuses_an_empty_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("chart.svg");
+        let a = vec![(1.0, 0.01), (2.0, 1.0), (3.0, 0.0)];
+        let b = vec![(1.0, 5.0), (2.0, 4.0)];
+        line_chart(&path, "t", ("x", "y"), &[("first", a), ("second", b)], true).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        assert!(svg.contains("first") && svg.contains("second"));
+        // On a log axis the zero is left out: 2 + 2 markers drawn.
+        assert_eq!(svg.matches("<circle").count(), 4);
+        let empty = vec![(1.0, f64::NAN)];
+        assert!(line_chart(&path, "t", ("x", "y"), &[("nan", empty)], false).is_err());
     }
 }
