@@ -175,6 +175,41 @@ fn the_pipe_of_interest_is_found_in_clutter() {
 }
 
 #[test]
+fn a_wall_far_from_the_pipe_costs_no_normals() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut pts = cylinder_points(
+        &mut rng,
+        20_000,
+        Vector3::zeros(),
+        Vector3::x(),
+        R,
+        2.0,
+        0.001,
+    );
+    let pipe = pts.len();
+    // A 4 m × 3 m wall 2 m away, five times as many points.
+    for _ in 0..100_000 {
+        let (a, b): (f64, f64) = (rng.random_range(-2.0..2.0), rng.random_range(-1.5..1.5));
+        pts.push(Vector3::new(a, 2.0, b) + 0.001 * Vector3::new(gaussian(&mut rng), 0.0, 0.0));
+    }
+    let cloud = Cloud::new(&pts).unwrap();
+    let fit = fit_cylinder(&cloud, &pipe_config()).unwrap();
+    assert!(
+        (fit.cylinder.radius - R).abs() < 2e-4,
+        "{}",
+        fit.cylinder.radius
+    );
+    // The pipe's points, the scoring subsample and the noise subsample: not the whole wall.
+    let sample = pipe_config().score_sample;
+    assert!(
+        cloud.computed() <= pipe + sample + pipemeasure::measure::cloud::NOISE_SAMPLE,
+        "{} of {} computed",
+        cloud.computed(),
+        cloud.len()
+    );
+}
+
+#[test]
 fn a_plane_is_not_a_cylinder() {
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let pts: Vec<Vector3<f64>> = (0..20_000)

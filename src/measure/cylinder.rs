@@ -204,14 +204,44 @@ fn hypothesis(
     })
 }
 
-/// Whether point `k` supports `cyl` within `threshold`, and its residual.
-fn supports(cloud: &Cloud, k: usize, cyl: &Cylinder, threshold: f64, cos_max: f64) -> Option<f64> {
+/// Whether point `k` supports `cyl` within its own threshold ([`point_threshold`] over
+/// `floor`), its normal within `cos_max` of the radial direction: its residual and threshold.
+/// The point's local geometry is read (computed if need be) only when the residual is within
+/// the largest threshold any point can have.
+fn supports(
+    cloud: &Cloud,
+    k: usize,
+    cyl: &Cylinder,
+    floor: f64,
+    cos_max: f64,
+) -> Option<(f64, f64)> {
     let p = &cloud.points[k];
     let e = cyl.residual(p);
-    if e.abs() > threshold {
+    if e.abs() > max_threshold(cloud, floor) {
         return None;
     }
-    (cloud.normals[k].dot(&cyl.radial(p)).abs() >= cos_max).then_some(e)
+    let (normal, noise) = cloud.local(k);
+    let t = point_threshold(noise, cloud, floor);
+    (e.abs() <= t && normal.dot(&cyl.radial(p)).abs() >= cos_max).then_some((e, t))
+}
+
+/// MSAC cost of point `k` for `cyl`: (e/t)² for a supporter, 1 otherwise.
+fn msac_cost(cloud: &Cloud, k: usize, cyl: &Cylinder, floor: f64, cos_max: f64) -> f64 {
+    supports(cloud, k, cyl, floor, cos_max).map_or(1.0, |(e, t)| (e / t).powi(2))
+}
+
+/// The points of `pool` within the largest threshold of `cyl` (those whose local geometry
+/// [`supports`] may read).
+fn near(cloud: &Cloud, pool: &[usize], cyl: &Cylinder, floor: f64) -> Vec<usize> {
+    let t = max_threshold(cloud, floor);
+    pool.par_chunks(4096)
+        .flat_map_iter(|chunk| {
+            chunk
+                .iter()
+                .copied()
+                .filter(move |&k| cyl.residual(&cloud.points[k]).abs() <= t)
+        })
+        .collect()
 }
 
 /// Nearest sample neighbours the local half of the pairs draws its second point from.
@@ -246,7 +276,7 @@ pub fn normal_coverage(
     let (e1, e2) = cyl.cross_section_basis();
     let mut bins = [0usize; COVERAGE_BINS];
     for &k in idx {
-        if supports(cloud, k, cyl, point_threshold(cloud, k, threshold), cos_max).is_none() {
+        if supports(cloud, k, cyl, threshold, cos_max).is_none() {
             continue;
         }
         let u = cyl.radial(&cloud.points[k]);
@@ -271,9 +301,15 @@ fn plane_rms(cloud: &Cloud, idx: &[usize]) -> f64 {
     plane_of(idx.iter().map(|&k| cloud.points[k])).map_or(0.0, |(_, _, l)| l.sqrt())
 }
 
-/// The consensus threshold of point `k`: 3 × its local noise, at least `floor`.
-fn point_threshold(cloud: &Cloud, k: usize, floor: f64) -> f64 {
-    (3.0 * cloud.point_noise[k]).max(floor)
+/// The consensus threshold of a point of local noise `noise`: 3 × it, at least `floor`, at
+/// most [`max_threshold`].
+fn point_threshold(noise: f64, cloud: &Cloud, floor: f64) -> f64 {
+    (3.0 * noise).min(3.0 * cloud.noise_cap).max(floor)
+}
+
+/// The largest consensus threshold: 3 × the cloud's noise cap, at least `floor`.
+fn max_threshold(cloud: &Cloud, floor: f64) -> f64 {
+    (3.0 * cloud.noise_cap).max(floor)
 }
 
 /// Step 3: Gauss–Newton on (axis direction, axis point, radius) over `idx`, minimising
@@ -376,6 +412,7 @@ pub fn fit_cylinder_among(
             .map(|_| candidates[rng.random_range(0..n)])
             .collect()
     };
+    cloud.prepare(&sample);
     // Half the pairs anywhere in the sample, half local: the second point among the first's
     // nearest sample neighbours, so that small cylinders in large scenes get pairs on them.
     let entries: Vec<[f64; 3]> = sample
@@ -412,18 +449,15 @@ pub fn fit_cylinder_among(
         .filter_map(|(h, &(a, b))| {
             let cyl = hypothesis(
                 &cloud.points[a],
-                &cloud.normals[a],
+                &cloud.local(a).0,
                 &cloud.points[b],
-                &cloud.normals[b],
+                &cloud.local(b).0,
                 config,
             )?;
             // MSAC with each point's own threshold (3 × its local noise), normalised.
             let cost: f64 = sample
                 .iter()
-                .map(|&k| {
-                    let t = point_threshold(cloud, k, threshold);
-                    supports(cloud, k, &cyl, t, cos_max).map_or(1.0, |e| (e / t).powi(2))
-                })
+                .map(|&k| msac_cost(cloud, k, &cyl, threshold, cos_max))
                 .sum();
             Some((cost, h, cyl))
         })
@@ -435,32 +469,30 @@ pub fn fit_cylinder_among(
     // The refined candidates compete on every candidate point, not the subsample: a small
     // object (a mug: 3 % of a scan) has too few sample points for the sample's cost to rank it
     // reliably against artefacts of similar support.
-    let msac = |c: &Cylinder| -> f64 {
-        candidates
-            .par_chunks(4096)
-            .map(|chunk| {
-                chunk
-                    .iter()
-                    .map(|&k| {
-                        let t = point_threshold(cloud, k, threshold);
-                        supports(cloud, k, c, t, cos_max).map_or(1.0, |e| (e / t).powi(2))
-                    })
-                    .sum::<f64>()
-            })
-            .collect::<Vec<f64>>()
-            .iter()
-            .sum()
+    // MSAC over every candidate: the points beyond the largest threshold cost 1 each, the
+    // near ones (`near`, in candidate order) are scored.
+    let msac = |c: &Cylinder, near: &[usize]| -> f64 {
+        (candidates.len() - near.len()) as f64
+            + near
+                .par_chunks(4096)
+                .map(|chunk| {
+                    chunk
+                        .iter()
+                        .map(|&k| msac_cost(cloud, k, c, threshold, cos_max))
+                        .sum::<f64>()
+                })
+                .collect::<Vec<f64>>()
+                .iter()
+                .sum::<f64>()
     };
     let select = |c: &Cylinder, pool: &[usize]| -> Vec<usize> {
         pool.iter()
             .copied()
-            .filter(|&k| {
-                supports(cloud, k, c, point_threshold(cloud, k, threshold), cos_max).is_some()
-            })
+            .filter(|&k| supports(cloud, k, c, threshold, cos_max).is_some())
             .collect()
     };
     let in_range = |c: &Cylinder| c.radius >= config.radius_min && c.radius <= config.radius_max;
-    let best = scored
+    let refined: Vec<Cylinder> = scored
         .iter()
         .take(TOP_HYPOTHESES)
         .filter(|(_, _, c)| normal_coverage(cloud, &sample, c, threshold, cos_max) >= MIN_COVERAGE)
@@ -476,7 +508,16 @@ pub fn fit_cylinder_among(
             // explains (no curvature beyond the noise).
             let curved = plane_rms(cloud, &support) > 3.0 * cyl_rms;
             let around = normal_coverage(cloud, &support, &r, threshold, cos_max) >= MIN_COVERAGE;
-            (in_range(&r) && curved && around).then(|| (msac(&r), r))
+            (in_range(&r) && curved && around).then_some(r)
+        })
+        .collect();
+    // The local geometry of the candidates near each refined cylinder, in Z-order batches.
+    let best = refined
+        .into_iter()
+        .map(|r| {
+            let band = near(cloud, candidates, &r, threshold);
+            cloud.prepare(&band);
+            (msac(&r, &band), r)
         })
         .min_by(|x, y| x.0.total_cmp(&y.0));
     let Some((_, mut cyl)) = best else {
@@ -487,7 +528,9 @@ pub fn fit_cylinder_among(
     let mut inliers: Vec<usize> = Vec::new();
     let mut result = None;
     for _ in 0..10 {
-        let next: Vec<usize> = candidates
+        let band = near(cloud, candidates, &cyl, threshold);
+        cloud.prepare(&band);
+        let next: Vec<usize> = band
             .par_chunks(4096)
             .flat_map_iter(|chunk| select(&cyl, chunk))
             .collect();
