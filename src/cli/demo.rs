@@ -243,16 +243,7 @@ fn print_table(lab: &Truth, profile: &Profile, r: &SiteResult) -> Result<()> {
     outln!("| method | radius ± σ (mm) | accuracy (mm) | vs TLS (mm) | RMSE (mm) | inliers |");
     outln!("|---|---|---|---|---|---|");
     for row in &r.rows {
-        outln!(
-            "| {} | {:.2} ± {:.2} | {:+.2} | {:+.2} | {:.2} | {} |",
-            row.method.name(),
-            row.radius_m * 1e3,
-            row.radius_std_m * 1e3,
-            row.accuracy_m * 1e3,
-            row.tls_accuracy_m * 1e3,
-            row.rmse_m * 1e3,
-            row.inliers
-        );
+        outln!("| {} | {} |", row.method.name(), row.markdown_cells());
     }
     Ok(())
 }

@@ -19,6 +19,7 @@ use serde::Serialize;
 use crate::calibrate::eccentricity::{
     ConicView, EccentricityConfig, correct_target, eccentricity_bound,
 };
+use crate::experiments::matching::with_detector_noise;
 use crate::geometry::Rigid3;
 use crate::geometry::conic::{Ellipse, conic_of_circle};
 use crate::geometry::eccentricity::luhmann_eccentricity;
@@ -148,7 +149,6 @@ fn simulate_views(
 ) -> Vec<View> {
     let centre = Vector3::zeros();
     let (w, h) = (f64::from(s.image_size.0), f64::from(s.image_size.1));
-    let n = s.ellipse_sigma_px;
     let mut views = Vec::new();
     let mut attempts = 0usize;
     while views.len() < s.views && attempts < 1000 * s.views.max(1) {
@@ -176,13 +176,7 @@ fn simulate_views(
         if !(0..32).all(|i| inside(exact.point(std::f64::consts::TAU * f64::from(i) / 32.0))) {
             continue;
         }
-        let ellipse = Ellipse::new(
-            exact.cx + n * gaussian(rng),
-            exact.cy + n * gaussian(rng),
-            exact.a + n * gaussian(rng),
-            exact.b + n * gaussian(rng),
-            exact.theta + n / exact.a * gaussian(rng),
-        );
+        let ellipse = with_detector_noise(&exact, s.ellipse_sigma_px, rng);
         let x = camera_matrix(k, &pose) * Vector4::new(0.0, 0.0, 0.0, 1.0);
         let noisy_pose = perturb(&pose, s, rng);
         views.push(View {

@@ -24,6 +24,7 @@ use crate::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
 use crate::calibrate::views::{FrameCamera, TargetObservation, observations};
 use crate::geometry::conic::Ellipse;
 use crate::io::colmap::Reconstruction;
+use crate::sim::devices::PRESETS;
 use crate::sim::lab::LabConfig;
 use crate::sim::sfm::gaussian;
 use crate::sim::simulate::{SimulateOptions, lab_geometry};
@@ -75,6 +76,17 @@ pub struct Prepared {
     pub truth_frame: Vec<usize>,
 }
 
+/// `e` with the detector's noise: σ on the centre and the axes (px), σ/a on the orientation.
+pub(crate) fn with_detector_noise(e: &Ellipse, sigma: f64, rng: &mut ChaCha8Rng) -> Ellipse {
+    Ellipse::new(
+        e.cx + sigma * gaussian(rng),
+        e.cy + sigma * gaussian(rng),
+        e.a + sigma * gaussian(rng),
+        e.b + sigma * gaussian(rng),
+        e.theta + sigma / e.a * gaussian(rng),
+    )
+}
+
 /// Simulated detections of a truth frame: fitted ellipses with noise, and their (id, view
 /// index).
 pub(crate) fn detections(
@@ -89,17 +101,7 @@ pub(crate) fn detections(
         .iter()
         .enumerate()
         .filter(|(_, t)| t.fitted.b >= scenario.min_semi_minor_px)
-        .map(|(k, t)| {
-            let f = t.fitted;
-            let e = Ellipse::new(
-                f.cx + s * gaussian(rng),
-                f.cy + s * gaussian(rng),
-                f.a + s * gaussian(rng),
-                f.b + s * gaussian(rng),
-                f.theta + s / f.a * gaussian(rng),
-            );
-            (e, (t.id, k))
-        })
+        .map(|(k, t)| (with_detector_noise(&t.fitted, s, rng), (t.id, k)))
         .unzip()
 }
 
@@ -340,7 +342,7 @@ impl Default for Table2Options {
     /// The paper's 270 frames: 90 frames of 3840×2160 per preset.
     fn default() -> Self {
         Table2Options {
-            devices: vec!["p30".into(), "iphone11".into(), "s10".into()],
+            devices: PRESETS.iter().map(|p| p.name.to_string()).collect(),
             frames: 90,
             width: 3840,
             seed: 1,

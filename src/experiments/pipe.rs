@@ -92,6 +92,23 @@ pub struct PipeRow {
     pub tls_accuracy_m: f64,
 }
 
+impl PipeRow {
+    /// The row's measurement as Markdown cells: radius ± σ, accuracy vs truth and vs the TLS
+    /// fit, RMSE (mm) and inliers.
+    #[must_use]
+    pub fn markdown_cells(&self) -> String {
+        format!(
+            "{:.2} ± {:.2} | {:+.2} | {:+.2} | {:.2} | {}",
+            self.radius_m * 1e3,
+            self.radius_std_m * 1e3,
+            self.accuracy_m * 1e3,
+            self.tls_accuracy_m * 1e3,
+            self.rmse_m * 1e3,
+            self.inliers
+        )
+    }
+}
+
 /// The outcome for one site.
 #[derive(Clone, Debug, Serialize)]
 pub struct SiteResult {
@@ -282,7 +299,10 @@ pub struct Table3Options {
 impl Default for Table3Options {
     fn default() -> Self {
         Table3Options {
-            devices: vec!["p30".into(), "iphone11".into(), "s10".into()],
+            devices: crate::sim::devices::PRESETS
+                .iter()
+                .map(|p| p.name.to_string())
+                .collect(),
             width: 1920,
             frames: 60,
             seed: 1,
@@ -341,15 +361,10 @@ pub fn table3_markdown(results: &[SiteResult]) -> String {
     for r in results {
         for row in &r.rows {
             md.push_str(&format!(
-                "| {} | {} | {:.2} ± {:.2} | {:+.2} | {:+.2} | {:.2} | {} | {:+.2} % |\n",
+                "| {} | {} | {} | {:+.2} % |\n",
                 r.device,
                 row.method.name(),
-                row.radius_m * 1e3,
-                row.radius_std_m * 1e3,
-                row.accuracy_m * 1e3,
-                row.tls_accuracy_m * 1e3,
-                row.rmse_m * 1e3,
-                row.inliers,
+                row.markdown_cells(),
                 100.0 * row.scale_error
             ));
         }

@@ -232,15 +232,11 @@ impl Morton {
         m
     }
 
-    /// The cell of `p` per axis (clamped to the box): monotone in each coordinate.
-    fn cell(&self, p: &Vector3<f64>) -> [u64; 3] {
+    /// The Z-order code of `p`'s cell (per axis clamped to the box).
+    fn code(&self, p: &Vector3<f64>) -> u64 {
         let max = f64::from((1u32 << MORTON_BITS) - 1);
         let c = (p - self.lo).component_mul(&self.scale);
-        [c.x, c.y, c.z].map(|v| v.clamp(0.0, max) as u64)
-    }
-
-    fn code(&self, p: &Vector3<f64>) -> u64 {
-        let [x, y, z] = self.cell(p);
+        let [x, y, z] = [c.x, c.y, c.z].map(|v| v.clamp(0.0, max) as u64);
         spread21(x) | (spread21(y) << 1) | (spread21(z) << 2)
     }
 }
