@@ -16,6 +16,8 @@ use kiddo::{Eytzinger, KdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
+use super::zorder::{self, BlockScratch, Grid, MORTON_BITS, Morton};
+
 /// A cloud around a local origin; normals and local noise on demand.
 pub struct Cloud {
     /// The local origin in the input frame (the points' mean).
@@ -30,9 +32,17 @@ pub struct Cloud {
     /// subsample's. A point in a sparser neighbourhood gets no wider threshold.
     pub noise_cap: f64,
     morton: Morton,
+    /// The points in curve order (the k-d tree's items and the grids' runs index it).
+    sorted: Vec<[f64; 3]>,
     tree: Tree,
-    /// Per point: unit normal (sign arbitrary) and the RMS distance of its neighbours from
-    /// their robust plane (m), once computed.
+    /// Per run of [`BOX_RUN`] curve positions: the centre and half diagonal of its bounding
+    /// box (along the curve, a run is a compact patch: a pass can skip a run whose box is
+    /// far from what it looks for).
+    boxes: Vec<(Vector3<f64>, f64)>,
+    /// The grids of the curve's octree levels, built when a batch first needs one.
+    grids: [OnceLock<Grid>; MORTON_BITS as usize + 1],
+    /// Per curve position: unit normal (sign arbitrary) and the RMS distance of the point's
+    /// neighbours from their robust plane (m), once computed.
     local: Vec<OnceLock<(Vector3<f64>, f64)>>,
 }
 
@@ -58,7 +68,16 @@ type Scratch = kiddo::QueryScratch<Eytzinger, f64, 3>;
 pub const NOISE_SAMPLE: usize = 32_768;
 
 /// Neighbours used for each normal.
-pub const NORMAL_NEIGHBOURS: usize = 16;
+pub const NORMAL_NEIGHBOURS: usize = zorder::K;
+
+/// Curve positions per box of [`Cloud::run_box`].
+pub const BOX_RUN: usize = 256;
+
+/// Batches of at least this many points are answered by a grid ([`Cloud::prepare`]).
+const GRID_BATCH: usize = 8192;
+
+/// Points of a batch whose neighbourhoods size its grid.
+const PILOT: usize = 512;
 
 /// Why a cloud cannot be prepared.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -101,12 +120,20 @@ pub(crate) fn plane_of(
         return None;
     }
     mean /= n as f64;
-    let mut cov = Matrix3::zeros();
+    // The six distinct sums of the symmetric covariance (products commute exactly: the same
+    // matrix as the full outer products, at two thirds of the work).
+    let mut c = [0.0; 6];
     for p in points {
         let d = p - mean;
-        cov += d * d.transpose();
+        c[0] += d.x * d.x;
+        c[1] += d.x * d.y;
+        c[2] += d.x * d.z;
+        c[3] += d.y * d.y;
+        c[4] += d.y * d.z;
+        c[5] += d.z * d.z;
     }
-    cov /= n as f64;
+    let c = c.map(|v| v / n as f64);
+    let cov = Matrix3::new(c[0], c[1], c[2], c[1], c[3], c[4], c[2], c[4], c[5]);
     let (normal, lmin) = smallest_eigen(&cov)?;
     Some((normal, mean, lmin.max(0.0)))
 }
@@ -163,82 +190,23 @@ fn robust_normal(nb: &[Vector3<f64>]) -> Option<(Vector3<f64>, f64)> {
     let m = nb.len().min(NORMAL_NEIGHBOURS);
     let nb = &nb[..m];
     let mut keep = [true; NORMAL_NEIGHBOURS];
-    let (n0, m0, _) = plane_fit(nb, &keep[..m])?;
+    let (n0, m0, l0) = plane_fit(nb, &keep[..m])?;
     let mut d = [0.0; NORMAL_NEIGHBOURS];
     for (v, p) in d.iter_mut().zip(nb) {
         *v = (p - m0).dot(&n0).abs();
     }
     let mut sorted = d;
-    sorted[..m].sort_unstable_by(f64::total_cmp);
-    let limit = (2.5 * 1.4826 * sorted[m / 2]).max(1e-12);
+    let (_, median, _) = sorted[..m].select_nth_unstable_by(m / 2, f64::total_cmp);
+    let limit = (2.5 * 1.4826 * *median).max(1e-12);
     for (k, v) in keep.iter_mut().zip(&d[..m]) {
         *k = *v <= limit;
     }
+    // Nothing dropped: the refit would repeat the first fit.
+    if keep[..m].iter().all(|&k| k) {
+        return Some((n0, l0.sqrt()));
+    }
     let (n1, _, l1) = plane_fit(nb, &keep[..m]).unwrap_or((n0, m0, 0.0));
     Some((n1, l1.sqrt()))
-}
-
-/// Bits per axis of the Morton codes.
-const MORTON_BITS: u32 = 21;
-
-/// Spreads the low 21 bits of `v` two zero bits apart.
-fn spread21(v: u64) -> u64 {
-    let mut x = v & 0x1f_ffff;
-    x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
-    x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
-    x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
-    x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
-    (x | (x << 2)) & 0x1249_2492_4924_9249
-}
-
-/// The points' order along a Z-order curve over their bounding box.
-struct Morton {
-    lo: Vector3<f64>,
-    /// Cells per metre per axis.
-    scale: Vector3<f64>,
-    /// Point indices in curve order (ties by index).
-    order: Vec<u32>,
-    /// Position of each point in `order`.
-    rank: Vec<u32>,
-}
-
-impl Morton {
-    fn new(points: &[Vector3<f64>]) -> Self {
-        let lo = points
-            .iter()
-            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(p));
-        let hi = points
-            .iter()
-            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(p));
-        let cells = f64::from((1u32 << MORTON_BITS) - 1);
-        let scale = (hi - lo).map(|v| if v > 0.0 { cells / v } else { 0.0 });
-        let mut m = Morton {
-            lo,
-            scale,
-            order: Vec::new(),
-            rank: Vec::new(),
-        };
-        let mut keyed: Vec<(u64, u32)> = points
-            .par_iter()
-            .enumerate()
-            .map(|(i, p)| (m.code(p), i as u32))
-            .collect();
-        keyed.par_sort_unstable();
-        m.rank = vec![0; points.len()];
-        for (pos, &(_, i)) in keyed.iter().enumerate() {
-            m.rank[i as usize] = pos as u32;
-        }
-        m.order = keyed.into_iter().map(|(_, i)| i).collect();
-        m
-    }
-
-    /// The Z-order code of `p`'s cell (per axis clamped to the box).
-    fn code(&self, p: &Vector3<f64>) -> u64 {
-        let max = f64::from((1u32 << MORTON_BITS) - 1);
-        let c = (p - self.lo).component_mul(&self.scale);
-        let [x, y, z] = [c.x, c.y, c.z].map(|v| v.clamp(0.0, max) as u64);
-        spread21(x) | (spread21(y) << 1) | (spread21(z) << 2)
-    }
 }
 
 impl Cloud {
@@ -265,16 +233,26 @@ impl Cloud {
         let morton = Morton::new(&points);
         // The tree's items are positions along the curve: built from sorted entries, its
         // leaves hold spatially coherent runs.
-        let entries: Vec<[f64; 3]> = morton
+        let sorted: Vec<[f64; 3]> = morton
             .order
-            .iter()
-            .map(|&i| {
-                let p = points[i as usize];
-                [p.x, p.y, p.z]
-            })
+            .par_iter()
+            .map(|&i| points[i as usize].into())
             .collect();
         let tree =
-            Tree::new_from_slice(&entries).map_err(|e| CloudError::Index(format!("{e:?}")))?;
+            Tree::new_from_slice(&sorted).map_err(|e| CloudError::Index(format!("{e:?}")))?;
+        let boxes = sorted
+            .par_chunks(BOX_RUN)
+            .map(|run| {
+                let (lo, hi) = run.iter().fold(
+                    (
+                        Vector3::repeat(f64::INFINITY),
+                        Vector3::repeat(f64::NEG_INFINITY),
+                    ),
+                    |(lo, hi), p| (lo.inf(&Vector3::from(*p)), hi.sup(&Vector3::from(*p))),
+                );
+                ((lo + hi) / 2.0, (hi - lo).norm() / 2.0)
+            })
+            .collect();
         let n = points.len();
         let mut cloud = Cloud {
             origin,
@@ -283,18 +261,18 @@ impl Cloud {
             surface_noise: 0.0,
             noise_cap: 0.0,
             morton,
+            sorted,
             tree,
+            boxes,
+            grids: [const { OnceLock::new() }; MORTON_BITS as usize + 1],
         };
         // The noise scale from every `stride`-th point along the curve (spread evenly).
         let stride = n.div_ceil(NOISE_SAMPLE);
-        let subsample: Vec<usize> = (0..n)
-            .step_by(stride)
-            .map(|pos| cloud.morton.order[pos] as usize)
-            .collect();
-        cloud.prepare(&subsample);
+        let subsample: Vec<u32> = (0..n as u32).step_by(stride).collect();
+        cloud.prepare_with_tree(&subsample);
         let mut scales: Vec<f64> = subsample
             .iter()
-            .map(|&k| cloud.local(k).1)
+            .map(|&pos| cloud.local_at(pos as usize).1)
             .filter(|s| s.is_finite())
             .collect();
         scales.sort_by(f64::total_cmp);
@@ -327,21 +305,135 @@ impl Cloud {
         self.points.is_empty()
     }
 
-    /// Computes the local geometry of the points `idx` that lack it, in parallel in Z-order
-    /// (neighbouring queries share the cache).
+    /// The curve position of point `k` (the index of the cloud's methods named `_at`: in
+    /// curve order, neighbouring positions are neighbouring points, so a pass over positions
+    /// in order reads memory in order).
+    #[must_use]
+    pub fn position(&self, k: usize) -> usize {
+        self.morton.rank[k] as usize
+    }
+
+    /// The point index at curve position `pos`.
+    #[must_use]
+    pub fn index_at(&self, pos: usize) -> usize {
+        self.morton.order[pos] as usize
+    }
+
+    /// The point at curve position `pos` (relative to the local origin).
+    #[must_use]
+    pub fn point_at(&self, pos: usize) -> Vector3<f64> {
+        Vector3::from(self.sorted[pos])
+    }
+
+    /// The centre and half diagonal of the bounding box of the curve positions
+    /// `run · BOX_RUN ..` `(run + 1) · BOX_RUN`: every one of those points is within the half
+    /// diagonal of the centre.
+    #[must_use]
+    pub fn run_box(&self, run: usize) -> (Vector3<f64>, f64) {
+        self.boxes[run]
+    }
+
+    /// Computes the local geometry of the points `idx` that lack it ([`Cloud::prepare_at`]).
     pub fn prepare(&self, idx: &[usize]) {
-        let mut missing: Vec<u32> = idx
+        let positions: Vec<usize> = idx.iter().map(|&k| self.position(k)).collect();
+        self.prepare_at(&positions);
+    }
+
+    /// Computes the local geometry of the points at curve positions `positions` that lack
+    /// it, in parallel in curve order (neighbouring queries share the cache). A large batch
+    /// (a band around a cylinder) is answered by the uniform grid whose cells match the
+    /// batch's point spacing (measured on a pilot of [`PILOT`] of its points): each cell's
+    /// queries scan its 3×3×3 block, and the few whose neighbourhood may reach beyond the
+    /// block go to the k-d tree. Both give the exact k nearest neighbours.
+    pub fn prepare_at(&self, positions: &[usize]) {
+        let mut missing: Vec<u32> = positions
             .iter()
-            .filter(|&&k| self.local[k].get().is_none())
-            .map(|&k| self.morton.rank[k])
+            .filter(|&&pos| self.local[pos].get().is_none())
+            .map(|&pos| pos as u32)
             .collect();
-        missing.par_sort_unstable();
+        if !missing.is_sorted() {
+            missing.par_sort_unstable();
+        }
         missing.dedup();
+        if missing.len() < GRID_BATCH {
+            self.prepare_with_tree(&missing);
+            return;
+        }
+        // The pilot: evenly strided along the curve; its 16th-neighbour distances size the
+        // grid's cells so that nine in ten neighbourhoods fit in a cell's block.
+        let stride = missing.len().div_ceil(PILOT);
+        let pilot: Vec<u32> = missing.iter().step_by(stride).copied().collect();
+        let mut reach: Vec<f64> = pilot
+            .par_iter()
+            .map_init(
+                || self.tree.create_scratch::<SquaredEuclidean<f64>>(),
+                |scratch, &pos| {
+                    let (local, d2) = self.compute_local(pos, Some(scratch));
+                    let _ = self.local[pos as usize].set(local);
+                    d2.sqrt()
+                },
+            )
+            .collect();
+        reach.sort_by(f64::total_cmp);
+        let Some(&cell) = reach.get(reach.len() * 9 / 10) else {
+            return;
+        };
+        if !(cell.is_finite() && cell > 0.0) {
+            self.prepare_with_tree(&missing);
+            return;
+        }
+        let level = self.morton.level_for(cell) as usize;
+        let grid = self.grids[level].get_or_init(|| Grid::new(&self.morton, level as u32));
+        // Runs of queries in one cell.
+        let mut groups: Vec<&[u32]> = Vec::new();
+        let mut rest = &missing[..];
+        while let Some(&first) = rest.first() {
+            let key = grid.key(&self.morton, first);
+            let len = rest.partition_point(|&p| grid.key(&self.morton, p) == key);
+            let (group, tail) = rest.split_at(len);
+            groups.push(group);
+            rest = tail;
+        }
+        // Scattered queries (about one per cell) gain nothing from the block scan.
+        if groups.len() * 2 > missing.len() {
+            self.prepare_with_tree(&missing);
+            return;
+        }
+        groups.par_iter().with_min_len(16).for_each_init(
+            || {
+                (
+                    BlockScratch::default(),
+                    self.tree.create_scratch::<SquaredEuclidean<f64>>(),
+                )
+            },
+            |(block, scratch), group| {
+                grid.nearest_in_cell(&self.morton, &self.sorted, group, block, |pos, nb| {
+                    let slot = &self.local[pos as usize];
+                    if slot.get().is_some() {
+                        return;
+                    }
+                    let local = match nb {
+                        Some(nb) => {
+                            let mut pts = [Vector3::zeros(); NORMAL_NEIGHBOURS];
+                            for (p, &q) in pts.iter_mut().zip(&nb.pos) {
+                                *p = Vector3::from(self.sorted[q as usize]);
+                            }
+                            local_geometry(&pts[..nb.len])
+                        }
+                        None => self.compute_local(pos, Some(scratch)).0,
+                    };
+                    let _ = slot.set(local);
+                });
+            },
+        );
+    }
+
+    /// [`Cloud::prepare`] through the k-d tree, for the curve positions `missing` (sorted).
+    fn prepare_with_tree(&self, missing: &[u32]) {
         missing.par_iter().for_each_init(
             || self.tree.create_scratch::<SquaredEuclidean<f64>>(),
             |scratch, &pos| {
-                let k = self.morton.order[pos as usize] as usize;
-                let _ = self.local[k].set(self.compute_local(k, Some(scratch)));
+                let _ = self.local[pos as usize].set(self.compute_local(pos, Some(scratch)).0);
             },
         );
     }
@@ -349,29 +441,19 @@ impl Cloud {
     /// Unit normal (sign arbitrary) and local noise of point `k`, computed on first use.
     #[must_use]
     pub fn local(&self, k: usize) -> (Vector3<f64>, f64) {
-        *self.local[k].get_or_init(|| self.compute_local(k, None))
+        self.local_at(self.position(k))
     }
 
-    /// Robust PCA of the point's [`NORMAL_NEIGHBOURS`] nearest neighbours (itself included);
-    /// a neighbourhood without a plane gets the z axis and an infinite noise.
-    fn compute_local(&self, k: usize, scratch: Option<&mut Scratch>) -> (Vector3<f64>, f64) {
-        let mut nb = [Vector3::zeros(); NORMAL_NEIGHBOURS];
-        let found = self.nearest(k, &mut nb, scratch);
-        robust_normal(&nb[..found])
-            .filter(|(_, s)| s.is_finite())
-            .unwrap_or((Vector3::z(), f64::INFINITY))
+    /// [`Cloud::local`] of the point at curve position `pos`.
+    #[must_use]
+    pub fn local_at(&self, pos: usize) -> (Vector3<f64>, f64) {
+        *self.local[pos].get_or_init(|| self.compute_local(pos as u32, None).0)
     }
 
-    /// The [`NORMAL_NEIGHBOURS`] nearest points of point `k` (itself included) into `out`;
-    /// returns how many.
-    fn nearest(
-        &self,
-        k: usize,
-        out: &mut [Vector3<f64>; NORMAL_NEIGHBOURS],
-        scratch: Option<&mut Scratch>,
-    ) -> usize {
-        let q = self.points[k];
-        let q = [q.x, q.y, q.z];
+    /// The local geometry of the point at curve position `pos` from its [`NORMAL_NEIGHBOURS`]
+    /// nearest neighbours in the k-d tree, and the squared distance of the farthest of them.
+    fn compute_local(&self, pos: u32, scratch: Option<&mut Scratch>) -> ((Vector3<f64>, f64), f64) {
+        let q = self.sorted[pos as usize];
         let nn = NonZero::new(NORMAL_NEIGHBOURS).unwrap_or(NonZero::<usize>::MIN);
         let query = self.tree.query(&q).nearest_n::<SquaredEuclidean<f64>>(nn);
         // A caller's scratch saves kiddo's thread-local lookup per query.
@@ -379,11 +461,22 @@ impl Cloud {
             Some(s) => query.with_scratch(s).execute(),
             None => query.execute(),
         };
-        for (slot, r) in out.iter_mut().zip(&found) {
-            *slot = self.points[self.morton.order[r.item as usize] as usize];
+        let mut nb = [Vector3::zeros(); NORMAL_NEIGHBOURS];
+        for (slot, r) in nb.iter_mut().zip(&found) {
+            *slot = Vector3::from(self.sorted[r.item as usize]);
         }
-        found.len().min(NORMAL_NEIGHBOURS)
+        let m = found.len().min(NORMAL_NEIGHBOURS);
+        let d2 = found.iter().map(|r| r.distance).fold(0.0, f64::max);
+        (local_geometry(&nb[..m]), d2)
     }
+}
+
+/// Robust PCA of a point's nearest neighbours (itself included): its normal and local noise;
+/// a neighbourhood without a plane gets the z axis and an infinite noise.
+fn local_geometry(nb: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
+    robust_normal(nb)
+        .filter(|(_, s)| s.is_finite())
+        .unwrap_or((Vector3::z(), f64::INFINITY))
 }
 
 #[cfg(test)]
@@ -408,6 +501,60 @@ mod tests {
         }
         assert!((c.origin - (offset + Vector3::new(0.195, 0.195, 2.0195))).norm() < 1e-6);
         assert!(c.surface_noise < 1e-6);
+    }
+
+    #[test]
+    fn a_batch_through_the_grid_gets_the_local_geometry_of_the_exact_neighbours() {
+        // A noisy pipe in sparse clutter, 44,000 points far from the origin: the half of the
+        // points not in the noise subsample (every other curve position) is one batch, large
+        // enough for the grid; a point's normal and noise must be those of its brute-force 16
+        // nearest neighbours.
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let offset = Vector3::new(4.0e5, 6.0e6, 80.0);
+        let mut pts: Vec<Vector3<f64>> = (0..40_000)
+            .map(|_| {
+                let (t, a): (f64, f64) = (rng.random_range(0.0..1.0), rng.random_range(0.0..6.3));
+                let e = 0.001 * rng.random_range(-1.0..1.0);
+                offset + Vector3::new(t, (0.05 + e) * a.cos(), (0.05 + e) * a.sin())
+            })
+            .collect();
+        pts.extend((0..4000).map(|_| {
+            offset
+                + Vector3::new(
+                    rng.random_range(0.0..1.0),
+                    rng.random_range(-0.3..0.3),
+                    rng.random_range(-0.3..0.3),
+                )
+        }));
+        let cloud = Cloud::new(&pts).unwrap();
+        let all: Vec<usize> = (0..cloud.len()).collect();
+        assert_eq!(cloud.computed(), cloud.len() / 2);
+        cloud.prepare(&all);
+        for k in (0..cloud.len())
+            .filter(|&k| cloud.position(k) % 2 == 1)
+            .step_by(37)
+        {
+            let p = cloud.points[k];
+            let mut by_distance: Vec<(f64, usize)> = (0..cloud.len())
+                .map(|j| ((cloud.points[j] - p).norm_squared(), j))
+                .collect();
+            by_distance.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let nb: Vec<Vector3<f64>> = by_distance[..NORMAL_NEIGHBOURS]
+                .iter()
+                .map(|&(_, j)| cloud.points[j])
+                .collect();
+            let (n_ref, s_ref) = local_geometry(&nb);
+            let (n, s) = cloud.local(k);
+            assert!(
+                n.dot(&n_ref).abs() > 1.0 - 1e-12,
+                "point {k}: {n} vs {n_ref}"
+            );
+            assert!(
+                (s - s_ref).abs() <= 1e-12 * s_ref.max(1e-9),
+                "point {k}: {s} vs {s_ref}"
+            );
+        }
     }
 
     #[test]

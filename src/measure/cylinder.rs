@@ -22,7 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::cloud::{Cloud, plane_of};
+use super::cloud::{BOX_RUN, Cloud, plane_of};
 
 /// A cylinder: the axis through `point` along unit `direction`, and the radius.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -204,7 +204,7 @@ fn hypothesis(
     })
 }
 
-/// Whether point `k` supports `cyl` within its own threshold ([`point_threshold`] over
+/// Whether the point at curve position `k` ([`Cloud::position`]) supports `cyl` within its own threshold ([`point_threshold`] over
 /// `floor`), its normal within `cos_max` of the radial direction: its residual and threshold.
 /// The point's local geometry is read (computed if need be) only when the residual is within
 /// the largest threshold any point can have.
@@ -215,31 +215,39 @@ fn supports(
     floor: f64,
     cos_max: f64,
 ) -> Option<(f64, f64)> {
-    let p = &cloud.points[k];
-    let e = cyl.residual(p);
+    let p = cloud.point_at(k);
+    let e = cyl.residual(&p);
     if e.abs() > max_threshold(cloud, floor) {
         return None;
     }
-    let (normal, noise) = cloud.local(k);
+    let (normal, noise) = cloud.local_at(k);
     let t = point_threshold(noise, cloud, floor);
-    (e.abs() <= t && normal.dot(&cyl.radial(p)).abs() >= cos_max).then_some((e, t))
+    (e.abs() <= t && normal.dot(&cyl.radial(&p)).abs() >= cos_max).then_some((e, t))
 }
 
-/// MSAC cost of point `k` for `cyl`: (e/t)² for a supporter, 1 otherwise.
+/// MSAC cost of the point at curve position `k` for `cyl`: (e/t)² for a supporter, 1 otherwise.
 fn msac_cost(cloud: &Cloud, k: usize, cyl: &Cylinder, floor: f64, cos_max: f64) -> f64 {
     supports(cloud, k, cyl, floor, cos_max).map_or(1.0, |(e, t)| (e / t).powi(2))
 }
 
-/// The points of `pool` within the largest threshold of `cyl` (those whose local geometry
-/// [`supports`] may read).
+/// The curve positions of `pool` within the largest threshold of `cyl` (those whose local
+/// geometry [`supports`] may read), in `pool`'s order.
 fn near(cloud: &Cloud, pool: &[usize], cyl: &Cylinder, floor: f64) -> Vec<usize> {
     let t = max_threshold(cloud, floor);
-    pool.par_chunks(4096)
-        .flat_map_iter(|chunk| {
-            chunk
-                .iter()
+    // Runs of the pool within one box: a box whose points' axis distances (the centre's ±
+    // the half diagonal) all miss `radius ± t` is skipped whole.
+    let runs: Vec<&[usize]> = pool.chunk_by(|a, b| a / BOX_RUN == b / BOX_RUN).collect();
+    runs.par_iter()
+        .with_min_len(16)
+        .flat_map_iter(|run| {
+            let (centre, half) = cloud.run_box(run[0] / BOX_RUN);
+            let rho = (centre - cyl.point).cross(&cyl.direction).norm();
+            let slack = half + 1e-9 * (1.0 + rho);
+            let miss = rho - slack > cyl.radius + t || rho + slack < cyl.radius - t;
+            let run: &[usize] = if miss { &[] } else { run };
+            run.iter()
                 .copied()
-                .filter(move |&k| cyl.residual(&cloud.points[k]).abs() <= t)
+                .filter(move |&k| cyl.residual(&cloud.point_at(k)).abs() <= t)
         })
         .collect()
 }
@@ -262,11 +270,11 @@ const COVERAGE_BINS: usize = 36;
 /// bins.
 const FILLED_BIN_FRACTION: f64 = 0.2;
 
-/// The arc (rad) of the circumference the points of `idx` that support `cyl` fill: the number
+/// The arc (rad) of the circumference the points at curve positions `idx` that support `cyl` fill: the number
 /// of filled 10° bins of their azimuths about the axis, times 10°. A span alone is not enough:
 /// a slightly bent strip of a plane (a stereo scan's table top) plus a few stray supporters on
 /// the far side spans a wide arc but fills a narrow one.
-pub fn normal_coverage(
+fn normal_coverage(
     cloud: &Cloud,
     idx: &[usize],
     cyl: &Cylinder,
@@ -279,7 +287,7 @@ pub fn normal_coverage(
         if supports(cloud, k, cyl, threshold, cos_max).is_none() {
             continue;
         }
-        let u = cyl.radial(&cloud.points[k]);
+        let u = cyl.radial(&cloud.point_at(k));
         let turn = u.dot(&e2).atan2(u.dot(&e1)) / std::f64::consts::TAU + 0.5;
         let bin = ((turn * COVERAGE_BINS as f64) as usize).min(COVERAGE_BINS - 1);
         bins[bin] += 1;
@@ -296,9 +304,9 @@ pub fn normal_coverage(
     filled as f64 * std::f64::consts::TAU / COVERAGE_BINS as f64
 }
 
-/// RMS distance of the points `idx` from their least-squares plane.
+/// RMS distance of the points at curve positions `idx` from their least-squares plane.
 fn plane_rms(cloud: &Cloud, idx: &[usize]) -> f64 {
-    plane_of(idx.iter().map(|&k| cloud.points[k])).map_or(0.0, |(_, _, l)| l.sqrt())
+    plane_of(idx.iter().map(|&k| cloud.point_at(k))).map_or(0.0, |(_, _, l)| l.sqrt())
 }
 
 /// The consensus threshold of a point of local noise `noise`: 3 × it, at least `floor`, at
@@ -312,7 +320,8 @@ fn max_threshold(cloud: &Cloud, floor: f64) -> f64 {
     (3.0 * cloud.noise_cap).max(floor)
 }
 
-/// Step 3: Gauss–Newton on (axis direction, axis point, radius) over `idx`, minimising
+/// Step 3: Gauss–Newton on (axis direction, axis point, radius) over the curve positions
+/// `idx`, minimising
 /// `Σ (|(p − a)×d| − r)²`. Returns the cylinder and `(JᵀJ)⁻¹` at the solution.
 fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Matrix5<f64>, f64)> {
     let mut cyl = start;
@@ -327,7 +336,7 @@ fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Ma
             .map(|chunk| {
                 let mut acc = (Matrix5::zeros(), Vector5::zeros(), 0.0);
                 for &k in chunk {
-                    let w = cloud.points[k] - cyl.point;
+                    let w = cloud.point_at(k) - cyl.point;
                     let wd = w.dot(&d);
                     let v = w - wd * d;
                     let rho = v.norm().max(1e-300);
@@ -381,7 +390,9 @@ fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Ma
 /// [`CylinderError::NotFound`] when no candidate reaches `min_inliers`;
 /// [`CylinderError::Config`] for bad settings.
 pub fn fit_cylinder(cloud: &Cloud, config: &CylinderConfig) -> Result<CylinderFit, CylinderError> {
-    fit_cylinder_among(cloud, &(0..cloud.points.len()).collect::<Vec<_>>(), config)
+    let all: Vec<usize> = (0..cloud.len()).collect();
+    // Every index, and every curve position in order.
+    fit_among(cloud, &all, &all, config)
 }
 
 /// [`fit_cylinder`] restricted to the points `candidates` (a region of interest, or what
@@ -392,6 +403,21 @@ pub fn fit_cylinder(cloud: &Cloud, config: &CylinderConfig) -> Result<CylinderFi
 pub fn fit_cylinder_among(
     cloud: &Cloud,
     candidates: &[usize],
+    config: &CylinderConfig,
+) -> Result<CylinderFit, CylinderError> {
+    let mut pool: Vec<usize> = candidates.iter().map(|&k| cloud.position(k)).collect();
+    pool.par_sort_unstable();
+    pool.dedup();
+    fit_among(cloud, candidates, &pool, config)
+}
+
+/// [`fit_cylinder_among`] with the candidates also given as their curve positions `pool`
+/// (sorted): the subsample is drawn from `candidates`, the passes over every candidate run
+/// over `pool`, reading the points and their local geometry in memory order.
+fn fit_among(
+    cloud: &Cloud,
+    candidates: &[usize],
+    pool: &[usize],
     config: &CylinderConfig,
 ) -> Result<CylinderFit, CylinderError> {
     config.validate()?;
@@ -412,16 +438,11 @@ pub fn fit_cylinder_among(
             .map(|_| candidates[rng.random_range(0..n)])
             .collect()
     };
-    cloud.prepare(&sample);
+    let sample: Vec<usize> = sample.iter().map(|&k| cloud.position(k)).collect();
+    cloud.prepare_at(&sample);
     // Half the pairs anywhere in the sample, half local: the second point among the first's
     // nearest sample neighbours, so that small cylinders in large scenes get pairs on them.
-    let entries: Vec<[f64; 3]> = sample
-        .iter()
-        .map(|&k| {
-            let p = cloud.points[k];
-            [p.x, p.y, p.z]
-        })
-        .collect();
+    let entries: Vec<[f64; 3]> = sample.iter().map(|&k| cloud.point_at(k).into()).collect();
     let tree: ImmutableKdTree<f64, 3> =
         ImmutableKdTree::new_from_slice(&entries).map_err(|_| not_found(0))?;
     let local_k = NonZero::new(LOCAL_NEIGHBOURS.min(sample.len())).unwrap_or(NonZero::<usize>::MIN);
@@ -448,10 +469,10 @@ pub fn fit_cylinder_among(
         .enumerate()
         .filter_map(|(h, &(a, b))| {
             let cyl = hypothesis(
-                &cloud.points[a],
-                &cloud.local(a).0,
-                &cloud.points[b],
-                &cloud.local(b).0,
+                &cloud.point_at(a),
+                &cloud.local_at(a).0,
+                &cloud.point_at(b),
+                &cloud.local_at(b).0,
                 config,
             )?;
             // MSAC with each point's own threshold (3 × its local noise), normalised.
@@ -472,7 +493,7 @@ pub fn fit_cylinder_among(
     // MSAC over every candidate: the points beyond the largest threshold cost 1 each, the
     // near ones (`near`, in candidate order) are scored.
     let msac = |c: &Cylinder, near: &[usize]| -> f64 {
-        (candidates.len() - near.len()) as f64
+        (pool.len() - near.len()) as f64
             + near
                 .par_chunks(4096)
                 .map(|chunk| {
@@ -515,8 +536,8 @@ pub fn fit_cylinder_among(
     let best = refined
         .into_iter()
         .map(|r| {
-            let band = near(cloud, candidates, &r, threshold);
-            cloud.prepare(&band);
+            let band = near(cloud, pool, &r, threshold);
+            cloud.prepare_at(&band);
             (msac(&r, &band), r)
         })
         .min_by(|x, y| x.0.total_cmp(&y.0));
@@ -528,8 +549,8 @@ pub fn fit_cylinder_among(
     let mut inliers: Vec<usize> = Vec::new();
     let mut result = None;
     for _ in 0..10 {
-        let band = near(cloud, candidates, &cyl, threshold);
-        cloud.prepare(&band);
+        let band = near(cloud, pool, &cyl, threshold);
+        cloud.prepare_at(&band);
         let next: Vec<usize> = band
             .par_chunks(4096)
             .flat_map_iter(|chunk| select(&cyl, chunk))
@@ -555,10 +576,12 @@ pub fn fit_cylinder_among(
     let (var_r, ss) = result.ok_or_else(|| not_found(0))?;
     let mut abs: Vec<f64> = inliers
         .iter()
-        .map(|&k| cyl.residual(&cloud.points[k]).abs())
+        .map(|&k| cyl.residual(&cloud.point_at(k)).abs())
         .collect();
     abs.sort_by(f64::total_cmp);
     let scale = 1.4826 * abs[abs.len() / 2];
+    let mut inlier_indices: Vec<usize> = inliers.iter().map(|&pos| cloud.index_at(pos)).collect();
+    inlier_indices.par_sort_unstable();
     Ok(CylinderFit {
         cylinder: Cylinder {
             point: cyl.point + cloud.origin,
@@ -569,7 +592,7 @@ pub fn fit_cylinder_among(
         rmse: (ss / inliers.len() as f64).sqrt(),
         inliers: inliers.len(),
         noise_scale: scale,
-        inlier_indices: inliers,
+        inlier_indices,
     })
 }
 

@@ -8,6 +8,7 @@ pub mod cylinder;
 pub mod pipe;
 pub mod scale;
 pub mod targets;
+mod zorder;
 
 pub use cloud::{Cloud, CloudError};
 pub use cylinder::{

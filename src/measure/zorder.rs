@@ -1,0 +1,434 @@
+//! The cloud's points along a Z-order (Morton) curve over cubic cells, and the uniform grids
+//! that order gives for free: at every level of the curve's octree a cell is one contiguous
+//! run of the order, so a grid of any cell size is a map from cell to run, and an exact
+//! k-nearest-neighbour search in a grid sized to the local point spacing scans a 3×3×3 block
+//! of cells instead of descending a k-d tree (about four times fewer instructions per query
+//! on a scanned surface).
+
+use std::collections::HashMap;
+use std::hash::{BuildHasherDefault, Hasher};
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+/// Bits per axis of the Morton codes.
+pub(crate) const MORTON_BITS: u32 = 21;
+
+/// Spreads the low 21 bits of `v` two zero bits apart.
+fn spread21(v: u64) -> u64 {
+    let mut x = v & 0x1f_ffff;
+    x = (x | (x << 32)) & 0x001f_0000_0000_ffff;
+    x = (x | (x << 16)) & 0x001f_0000_ff00_00ff;
+    x = (x | (x << 8)) & 0x100f_00f0_0f00_f00f;
+    x = (x | (x << 4)) & 0x10c3_0c30_c30c_30c3;
+    (x | (x << 2)) & 0x1249_2492_4924_9249
+}
+
+/// The Z-order code of integer cell coordinates.
+fn interleave(c: [u64; 3]) -> u64 {
+    spread21(c[0]) | (spread21(c[1]) << 1) | (spread21(c[2]) << 2)
+}
+
+/// The points' order along a Z-order curve over cubic cells spanning their bounding box.
+pub(crate) struct Morton {
+    lo: Vector3<f64>,
+    /// Finest cells per metre (the same on every axis: cells are cubes).
+    scale: f64,
+    /// Point indices in curve order (ties by index).
+    pub order: Vec<u32>,
+    /// Position of each point in `order`.
+    pub rank: Vec<u32>,
+    /// The codes in curve order (sorted).
+    codes: Vec<u64>,
+}
+
+impl Morton {
+    /// Orders `points` (finite, at least one) along the curve.
+    pub fn new(points: &[Vector3<f64>]) -> Self {
+        let lo = points
+            .iter()
+            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(p));
+        let hi = points
+            .iter()
+            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(p));
+        let extent = (hi - lo).max();
+        let scale = if extent > 0.0 {
+            f64::from((1u32 << MORTON_BITS) - 1) / extent
+        } else {
+            0.0
+        };
+        let mut m = Morton {
+            lo,
+            scale,
+            order: Vec::new(),
+            rank: Vec::new(),
+            codes: Vec::new(),
+        };
+        let mut keyed: Vec<(u64, u32)> = points
+            .par_iter()
+            .enumerate()
+            .map(|(i, p)| (interleave(m.finest(p)), i as u32))
+            .collect();
+        keyed.par_sort_unstable();
+        m.rank = vec![0; points.len()];
+        for (pos, &(_, i)) in keyed.iter().enumerate() {
+            m.rank[i as usize] = pos as u32;
+        }
+        (m.codes, m.order) = keyed.into_iter().unzip();
+        m
+    }
+
+    /// Integer coordinates of `p`'s finest cell (clamped to the box).
+    fn finest(&self, p: &Vector3<f64>) -> [u64; 3] {
+        let max = f64::from((1u32 << MORTON_BITS) - 1);
+        let c = (p - self.lo) * self.scale;
+        [c.x, c.y, c.z].map(|v| v.clamp(0.0, max) as u64)
+    }
+
+    /// Side (m) of the cells at `level` (2^level cells per axis), infinite for a cloud of one
+    /// location.
+    pub fn cell_size(&self, level: u32) -> f64 {
+        f64::from(1u32 << (MORTON_BITS - level)) / self.scale
+    }
+
+    /// The finest level whose cells are at least `size` wide (level 0: one cell).
+    pub fn level_for(&self, size: f64) -> u32 {
+        (0..=MORTON_BITS)
+            .rev()
+            .find(|&l| self.cell_size(l) >= size)
+            .unwrap_or(0)
+    }
+}
+
+/// Hashes a cell code by one multiplication (the codes are distinct integers; SipHash's
+/// protection against chosen keys buys nothing here and costs a third of a query).
+#[derive(Default)]
+struct CellHasher(u64);
+
+impl Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ u64::from(b)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        }
+    }
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (v ^ (v >> 29)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    }
+}
+
+/// The cells of one level of the curve's octree: each non-empty cell's run of positions.
+pub(crate) struct Grid {
+    level: u32,
+    /// Cell side (m).
+    size: f64,
+    runs: HashMap<u64, (u32, u32), BuildHasherDefault<CellHasher>>,
+}
+
+/// How far beyond the last query's k-th squared distance a query ranks its candidates first
+/// (1.2²: neighbouring points have similar spacing).
+const GUESS: f64 = 1.44;
+
+/// Neighbours a grid query returns (the cloud's normal neighbourhood).
+pub(crate) const K: usize = 16;
+
+/// The k nearest neighbours of one query: positions along the curve and squared distances,
+/// nearest first.
+#[derive(Clone, Copy)]
+pub(crate) struct Nearest {
+    pub pos: [u32; K],
+    pub d2: [f64; K],
+    pub len: usize,
+}
+
+impl Nearest {
+    fn new() -> Self {
+        Nearest {
+            pos: [0; K],
+            d2: [f64::INFINITY; K],
+            len: 0,
+        }
+    }
+}
+
+/// Per-thread scratch of [`Grid::nearest_in_cell`]: the block's points (coordinates by axis,
+/// so that the distance loop vectorises), the candidates of the current query, and the last
+/// query's k-th squared distance.
+#[derive(Default)]
+pub(crate) struct BlockScratch {
+    pos: Vec<u32>,
+    xyz: [Vec<f64>; 3],
+    /// The block's non-empty cells: their points' range in `pos` and `xyz`, and their box
+    /// (widened by a millionth of a cell for the rounding of the cell coordinates).
+    cells: Vec<(usize, usize, [f64; 3], [f64; 3])>,
+    ranked: Vec<(u64, u32)>,
+    last: f64,
+}
+
+impl BlockScratch {
+    fn clear(&mut self) {
+        self.pos.clear();
+        self.xyz.iter_mut().for_each(Vec::clear);
+        self.cells.clear();
+    }
+
+    fn push_run(&mut self, points: &[[f64; 3]], start: u32, end: u32, lo: [f64; 3], hi: [f64; 3]) {
+        let first = self.pos.len();
+        self.cells
+            .push((first, first + (end - start) as usize, lo, hi));
+        self.pos.extend(start..end);
+        for p in &points[start as usize..end as usize] {
+            for (axis, v) in self.xyz.iter_mut().zip(p) {
+                axis.push(*v);
+            }
+        }
+    }
+
+    /// The [`K`] nearest of the block's points to `q` within squared distance `limit` (fewer
+    /// when fewer are that near), nearest first.
+    fn nearest(&mut self, q: &[f64; 3], limit: f64) -> Nearest {
+        self.ranked.resize(self.pos.len(), (0, 0));
+        let [xs, ys, zs] = &self.xyz;
+        // Branch-free compaction: every candidate is written, the kept ones advance. A
+        // squared distance is never negative, so its bits order like its value: integer
+        // comparisons rank the candidates. Cells whose box lies beyond `limit` are skipped.
+        let mut kept = 0;
+        for &(first, end, lo, hi) in &self.cells {
+            let gap: f64 = (0..3)
+                .map(|a| (lo[a] - q[a]).max(q[a] - hi[a]).max(0.0).powi(2))
+                .sum();
+            if gap > limit {
+                continue;
+            }
+            let cell = xs[first..end]
+                .iter()
+                .zip(&ys[first..end])
+                .zip(&zs[first..end])
+                .zip(&self.pos[first..end]);
+            for (((&x, &y), &z), &pos) in cell {
+                let d2 = (x - q[0]).powi(2) + (y - q[1]).powi(2) + (z - q[2]).powi(2);
+                self.ranked[kept] = (d2.to_bits(), pos);
+                kept += usize::from(d2 <= limit);
+            }
+        }
+        // Insertion into the sorted best K (the candidates are few: those within `limit`);
+        // the earlier of two at the same distance first, so the order is the block's.
+        let mut best = Nearest::new();
+        let mut keys = [u64::MAX; K];
+        let mut len = 0;
+        for &(key, pos) in &self.ranked[..kept] {
+            if key >= keys[K - 1] {
+                continue;
+            }
+            let mut i = len.min(K - 1);
+            while i > 0 && key < keys[i - 1] {
+                keys[i] = keys[i - 1];
+                best.pos[i] = best.pos[i - 1];
+                i -= 1;
+            }
+            keys[i] = key;
+            best.pos[i] = pos;
+            len = (len + 1).min(K);
+        }
+        for (d2, &key) in best.d2.iter_mut().zip(&keys[..len]) {
+            *d2 = f64::from_bits(key);
+        }
+        best.len = len;
+        best
+    }
+}
+
+impl Grid {
+    /// The grid of `morton`'s cells at `level`: the runs found in one pass over the sorted
+    /// codes (in parallel halves), then indexed.
+    pub fn new(morton: &Morton, level: u32) -> Self {
+        let shift = 3 * (MORTON_BITS - level);
+        let codes = &morton.codes;
+        let key = |pos: usize| codes[pos] >> shift;
+        // Run starts: positions whose cell differs from the previous position's.
+        let starts: Vec<u32> = (0..codes.len())
+            .into_par_iter()
+            .with_min_len(1 << 16)
+            .filter(|&pos| pos == 0 || key(pos) != key(pos - 1))
+            .map(|pos| pos as u32)
+            .collect();
+        let mut runs =
+            HashMap::with_capacity_and_hasher(starts.len(), BuildHasherDefault::default());
+        for (i, &start) in starts.iter().enumerate() {
+            let end = starts.get(i + 1).copied().unwrap_or(codes.len() as u32);
+            runs.insert(key(start as usize), (start, end));
+        }
+        Grid {
+            level,
+            size: morton.cell_size(level),
+            runs,
+        }
+    }
+
+    /// The cell key of the point at curve position `pos`.
+    pub fn key(&self, morton: &Morton, pos: u32) -> u64 {
+        morton.codes[pos as usize] >> (3 * (MORTON_BITS - self.level))
+    }
+
+    /// The exact [`K`] nearest neighbours (positions along the curve; `points` in curve
+    /// order) of each query position in `queries`, all in one cell. A query whose
+    /// neighbourhood may reach beyond the cell's 3×3×3 block (its k-th distance exceeds the
+    /// distance to the block's boundary, or the block holds fewer than k points) gets `None`.
+    pub fn nearest_in_cell(
+        &self,
+        morton: &Morton,
+        points: &[[f64; 3]],
+        queries: &[u32],
+        scratch: &mut BlockScratch,
+        mut found: impl FnMut(u32, Option<&Nearest>),
+    ) {
+        let Some(&first) = queries.first() else {
+            return;
+        };
+        let cells = 1i64 << self.level;
+        let shift = MORTON_BITS - self.level;
+        let cell = morton
+            .finest(&Vector3::from(points[first as usize]))
+            .map(|v| (v >> shift) as i64);
+        scratch.clear();
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let c = [cell[0] + dx, cell[1] + dy, cell[2] + dz];
+                    if c.iter().any(|&v| v < 0 || v >= cells) {
+                        continue;
+                    }
+                    let key = interleave(c.map(|v| v as u64));
+                    if let Some(&(s, e)) = self.runs.get(&key) {
+                        let pad = 1e-6 * self.size;
+                        let lo: [f64; 3] =
+                            std::array::from_fn(|a| morton.lo[a] + c[a] as f64 * self.size - pad);
+                        let hi = lo.map(|v| v + self.size + 2.0 * pad);
+                        scratch.push_run(points, s, e, lo, hi);
+                    }
+                }
+            }
+        }
+        // The distance from a query to the block's boundary along each axis; a side at the
+        // edge of the cloud's box has nothing beyond it.
+        let lo = morton.lo;
+        let bound = |axis: usize, q: f64| -> f64 {
+            let below = if cell[axis] > 0 {
+                q - (lo[axis] + (cell[axis] - 1) as f64 * self.size)
+            } else {
+                f64::INFINITY
+            };
+            let above = if cell[axis] + 1 < cells {
+                lo[axis] + (cell[axis] + 2) as f64 * self.size - q
+            } else {
+                f64::INFINITY
+            };
+            below.min(above)
+        };
+        for &q in queries {
+            let p = points[q as usize];
+            // A margin of a millionth of a cell for the rounding of the cell coordinates.
+            let reach =
+                (0..3).map(|a| bound(a, p[a])).fold(f64::INFINITY, f64::min) - 1e-6 * self.size;
+            let limit = reach * reach;
+            // The previous query's k-th distance, widened, usually holds k points and a
+            // fifth of the block: only those are ranked. Too few: rank the whole block.
+            let guess = (scratch.last * GUESS).min(limit);
+            let mut best = scratch.nearest(&p, guess);
+            if best.len < K && guess < limit {
+                best = scratch.nearest(&p, limit);
+            }
+            let exact = best.len == K && reach > 0.0 && best.d2[K - 1] <= limit;
+            if exact {
+                scratch.last = best.d2[K - 1];
+            }
+            found(q, exact.then_some(&best));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// Brute-force k nearest squared distances.
+    fn brute(points: &[[f64; 3]], q: usize) -> Vec<f64> {
+        let mut d: Vec<f64> = points
+            .iter()
+            .map(|x| (0..3).map(|a| (x[a] - points[q][a]).powi(2)).sum())
+            .collect();
+        d.sort_by(f64::total_cmp);
+        d.truncate(K);
+        d
+    }
+
+    #[test]
+    fn grid_neighbours_are_exact_or_refused() {
+        // A dense plane, a sparse volume and duplicated points, in a box far from cubic.
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut pts: Vec<Vector3<f64>> = (0..6000)
+            .map(|_| Vector3::new(rng.random_range(0.0..2.0), rng.random_range(0.0..0.3), 0.1))
+            .collect();
+        pts.extend((0..600).map(|_| {
+            Vector3::new(
+                rng.random_range(0.0..2.0),
+                rng.random_range(0.0..0.3),
+                rng.random_range(0.0..0.5),
+            )
+        }));
+        pts.extend(pts[..200].to_vec());
+        let morton = Morton::new(&pts);
+        let sorted: Vec<[f64; 3]> = morton
+            .order
+            .iter()
+            .map(|&i| pts[i as usize].into())
+            .collect();
+        // The 90th percentile of the 16th-neighbour distances: a grid at least that coarse
+        // answers at least nine queries in ten (every block reaches one cell beyond its
+        // query), finer grids refuse more; every answer is exact.
+        let mut reach: Vec<f64> = (0..sorted.len())
+            .map(|q| brute(&sorted, q)[K - 1].sqrt())
+            .collect();
+        reach.sort_by(f64::total_cmp);
+        let sized = morton.level_for(reach[reach.len() * 9 / 10]);
+        for level in [sized - 2, sized - 1, sized, sized + 1] {
+            let grid = Grid::new(&morton, level);
+            let mut scratch = BlockScratch::default();
+            let (mut answered, mut start) = (0, 0);
+            while start < sorted.len() {
+                let key = grid.key(&morton, start as u32);
+                let len = (start..sorted.len())
+                    .take_while(|&p| grid.key(&morton, p as u32) == key)
+                    .count();
+                let queries: Vec<u32> = (start as u32..(start + len) as u32).collect();
+                grid.nearest_in_cell(&morton, &sorted, &queries, &mut scratch, |q, nb| {
+                    if let Some(nb) = nb {
+                        assert_eq!(&nb.d2[..], &brute(&sorted, q as usize)[..]);
+                        for (&p, &d2) in nb.pos.iter().zip(&nb.d2) {
+                            let (x, y) = (sorted[p as usize], sorted[q as usize]);
+                            let e: f64 = (0..3).map(|a| (x[a] - y[a]).powi(2)).sum();
+                            assert_eq!(e, d2);
+                        }
+                        answered += 1;
+                    }
+                });
+                start += len;
+            }
+            if level <= sized {
+                assert!(
+                    10 * answered >= 9 * sorted.len(),
+                    "level {level}: {answered}"
+                );
+            } else {
+                assert!(
+                    10 * answered < 9 * sorted.len(),
+                    "level {level}: {answered}"
+                );
+            }
+        }
+    }
+}
