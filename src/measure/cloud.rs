@@ -189,15 +189,16 @@ fn smallest_eigen(a: &Matrix3<f64>) -> Option<(Vector3<f64>, f64)> {
 fn robust_normal(nb: &[Vector3<f64>]) -> Option<(Vector3<f64>, f64)> {
     let m = nb.len().min(NORMAL_NEIGHBOURS);
     let nb = &nb[..m];
-    let mut keep = [true; NORMAL_NEIGHBOURS];
-    let (n0, m0, l0) = plane_fit(nb, &keep[..m])?;
+    let (n0, m0, l0) = plane_of(nb.iter().copied())?;
     let mut d = [0.0; NORMAL_NEIGHBOURS];
     for (v, p) in d.iter_mut().zip(nb) {
         *v = (p - m0).dot(&n0).abs();
     }
-    let mut sorted = d;
-    let (_, median, _) = sorted[..m].select_nth_unstable_by(m / 2, f64::total_cmp);
-    let limit = (2.5 * 1.4826 * *median).max(1e-12);
+    // The median distance: non-negative floats order like their bits.
+    let mut bits = d.map(f64::to_bits);
+    let (_, median, _) = bits[..m].select_nth_unstable(m / 2);
+    let limit = (2.5 * 1.4826 * f64::from_bits(*median)).max(1e-12);
+    let mut keep = [true; NORMAL_NEIGHBOURS];
     for (k, v) in keep.iter_mut().zip(&d[..m]) {
         *k = *v <= limit;
     }

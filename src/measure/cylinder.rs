@@ -215,14 +215,18 @@ fn supports(
     floor: f64,
     cos_max: f64,
 ) -> Option<(f64, f64)> {
-    let p = cloud.point_at(k);
-    let e = cyl.residual(&p);
+    // The radial vector once: its length gives the residual, and the normal test compares
+    // |n·v| with cos_max·|v| (no second square root, no division).
+    let w = cloud.point_at(k) - cyl.point;
+    let v = w - w.dot(&cyl.direction) * cyl.direction;
+    let rho = v.norm();
+    let e = rho - cyl.radius;
     if e.abs() > max_threshold(cloud, floor) {
         return None;
     }
     let (normal, noise) = cloud.local_at(k);
     let t = point_threshold(noise, cloud, floor);
-    (e.abs() <= t && normal.dot(&cyl.radial(&p)).abs() >= cos_max).then_some((e, t))
+    (e.abs() <= t && normal.dot(&v).abs() >= cos_max * rho).then_some((e, t))
 }
 
 /// MSAC cost of the point at curve position `k` for `cyl`: (e/t)² for a supporter, 1 otherwise.
@@ -492,9 +496,16 @@ fn fit_among(
     // reliably against artefacts of similar support.
     // MSAC over every candidate: the points beyond the largest threshold cost 1 each, the
     // near ones (`near`, in candidate order) are scored.
-    let msac = |c: &Cylinder, near: &[usize]| -> f64 {
-        (pool.len() - near.len()) as f64
-            + near
+    // Blocks of 16 chunks of 4096, the chunks' sums added in order; stops (None) as soon as
+    // the cost exceeds `bound` (every cost is at least 0, so the total would too).
+    let msac_within = |c: &Cylinder, near: &[usize], bound: f64| -> Option<f64> {
+        let outside = (pool.len() - near.len()) as f64;
+        let mut inside = 0.0;
+        for block in near.chunks(16 * 4096) {
+            if outside + inside > bound {
+                return None;
+            }
+            let sums: Vec<f64> = block
                 .par_chunks(4096)
                 .map(|chunk| {
                     chunk
@@ -502,9 +513,10 @@ fn fit_among(
                         .map(|&k| msac_cost(cloud, k, c, threshold, cos_max))
                         .sum::<f64>()
                 })
-                .collect::<Vec<f64>>()
-                .iter()
-                .sum::<f64>()
+                .collect();
+            inside = sums.iter().fold(inside, |a, b| a + b);
+        }
+        Some(outside + inside)
     };
     let select = |c: &Cylinder, pool: &[usize]| -> Vec<usize> {
         pool.iter()
@@ -532,15 +544,21 @@ fn fit_among(
             (in_range(&r) && curved && around).then_some(r)
         })
         .collect();
-    // The local geometry of the candidates near each refined cylinder, in Z-order batches.
-    let best = refined
-        .into_iter()
-        .map(|r| {
-            let band = near(cloud, pool, &r, threshold);
-            cloud.prepare_at(&band);
-            (msac(&r, &band), r)
-        })
-        .min_by(|x, y| x.0.total_cmp(&y.0));
+    // The first with the least cost wins. A candidate whose points beyond its band alone
+    // cost more than the best so far is dropped before its band's local geometry is computed;
+    // one whose cost passes the best part way is dropped there.
+    let mut best: Option<(f64, Cylinder)> = None;
+    for r in refined {
+        let bound = best.as_ref().map_or(f64::INFINITY, |b| b.0);
+        let band = near(cloud, pool, &r, threshold);
+        if (pool.len() - band.len()) as f64 > bound {
+            continue;
+        }
+        cloud.prepare_at(&band);
+        if let Some(cost) = msac_within(&r, &band, bound).filter(|&cost| cost < bound) {
+            best = Some((cost, r));
+        }
+    }
     let Some((_, mut cyl)) = best else {
         return Err(not_found(0));
     };
