@@ -16,7 +16,7 @@ use kiddo::{Eytzinger, KdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
-use super::zorder::{self, BlockScratch, Grid, MORTON_BITS, Morton};
+use super::zorder::{self, BlockScratch, Grid, Morton};
 
 /// A cloud around a local origin; normals and local noise on demand.
 pub struct Cloud {
@@ -39,8 +39,6 @@ pub struct Cloud {
     /// box (along the curve, a run is a compact patch: a pass can skip a run whose box is
     /// far from what it looks for).
     boxes: Vec<(Vector3<f64>, f64)>,
-    /// The grids of the curve's octree levels, built when a batch first needs one.
-    grids: [OnceLock<Grid>; MORTON_BITS as usize + 1],
     /// Per curve position: unit normal (sign arbitrary) and the RMS distance of the point's
     /// neighbours from their robust plane (m), once computed.
     local: Vec<OnceLock<(Vector3<f64>, f64)>>,
@@ -265,7 +263,6 @@ impl Cloud {
             sorted,
             tree,
             boxes,
-            grids: [const { OnceLock::new() }; MORTON_BITS as usize + 1],
         };
         // The noise scale from every `stride`-th point along the curve (spread evenly).
         let stride = n.div_ceil(NOISE_SAMPLE);
@@ -383,16 +380,17 @@ impl Cloud {
             self.prepare_with_tree(&missing);
             return;
         }
-        let level = self.morton.level_for(cell) as usize;
-        let grid = self.grids[level].get_or_init(|| Grid::new(&self.morton, level as u32));
+        let level = self.morton.level_for(cell);
         // Runs of queries in one cell.
         let mut groups: Vec<&[u32]> = Vec::new();
+        let mut keys: Vec<u64> = Vec::new();
         let mut rest = &missing[..];
         while let Some(&first) = rest.first() {
-            let key = grid.key(&self.morton, first);
-            let len = rest.partition_point(|&p| grid.key(&self.morton, p) == key);
+            let key = Grid::key(&self.morton, level, first);
+            let len = rest.partition_point(|&p| Grid::key(&self.morton, level, p) == key);
             let (group, tail) = rest.split_at(len);
             groups.push(group);
+            keys.push(key);
             rest = tail;
         }
         // Scattered queries (about one per cell) gain nothing from the block scan.
@@ -400,6 +398,7 @@ impl Cloud {
             self.prepare_with_tree(&missing);
             return;
         }
+        let grid = Grid::covering(&self.morton, level, &keys);
         groups.par_iter().with_min_len(16).for_each_init(
             || {
                 (

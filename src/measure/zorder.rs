@@ -24,6 +24,17 @@ fn spread21(v: u64) -> u64 {
     (x | (x << 2)) & 0x1249_2492_4924_9249
 }
 
+/// Gathers every third bit of `v` (from bit 0) into the low 21 bits: the inverse of
+/// [`spread21`].
+fn compact21(v: u64) -> u64 {
+    let mut x = v & 0x1249_2492_4924_9249;
+    x = (x | (x >> 2)) & 0x10c3_0c30_c30c_30c3;
+    x = (x | (x >> 4)) & 0x100f_00f0_0f00_f00f;
+    x = (x | (x >> 8)) & 0x001f_0000_ff00_00ff;
+    x = (x | (x >> 16)) & 0x001f_0000_0000_ffff;
+    (x | (x >> 32)) & 0x1f_ffff
+}
+
 /// The Z-order code of integer cell coordinates.
 fn interleave(c: [u64; 3]) -> u64 {
     spread21(c[0]) | (spread21(c[1]) << 1) | (spread21(c[2]) << 2)
@@ -241,24 +252,43 @@ impl BlockScratch {
 }
 
 impl Grid {
-    /// The grid of `morton`'s cells at `level`: the runs found in one pass over the sorted
-    /// codes (in parallel halves), then indexed.
-    pub fn new(morton: &Morton, level: u32) -> Self {
+    /// The grid of `morton`'s cells at `level` around the cells `query_cells` (keys): the
+    /// runs of those cells and of their 26 neighbours, found in one merge of the needed keys
+    /// (sorted) with the sorted codes. Much cheaper than indexing every cell of the cloud
+    /// when the queries are a band around one pipe.
+    pub fn covering(morton: &Morton, level: u32, query_cells: &[u64]) -> Self {
         let shift = 3 * (MORTON_BITS - level);
-        let codes = &morton.codes;
-        let key = |pos: usize| codes[pos] >> shift;
-        // Run starts: positions whose cell differs from the previous position's.
-        let starts: Vec<u32> = (0..codes.len())
-            .into_par_iter()
-            .with_min_len(1 << 16)
-            .filter(|&pos| pos == 0 || key(pos) != key(pos - 1))
-            .map(|pos| pos as u32)
+        let cells = 1i64 << level;
+        let mut needed: Vec<u64> = query_cells
+            .par_iter()
+            .flat_map_iter(|&key| {
+                let c = [key, key >> 1, key >> 2].map(|v| compact21(v) as i64);
+                (0..27).filter_map(move |n| {
+                    let d = [n % 3 - 1, n / 3 % 3 - 1, n / 9 - 1];
+                    let m: [i64; 3] = std::array::from_fn(|a| c[a] + d[a]);
+                    m.iter()
+                        .all(|&v| (0..cells).contains(&v))
+                        .then(|| interleave(m.map(|v| v as u64)))
+                })
+            })
             .collect();
+        needed.par_sort_unstable();
+        needed.dedup();
+        let codes = &morton.codes;
         let mut runs =
-            HashMap::with_capacity_and_hasher(starts.len(), BuildHasherDefault::default());
-        for (i, &start) in starts.iter().enumerate() {
-            let end = starts.get(i + 1).copied().unwrap_or(codes.len() as u32);
-            runs.insert(key(start as usize), (start, end));
+            HashMap::with_capacity_and_hasher(needed.len(), BuildHasherDefault::default());
+        let mut pos = 0;
+        for &key in &needed {
+            while pos < codes.len() && codes[pos] >> shift < key {
+                pos += 1;
+            }
+            let start = pos;
+            while pos < codes.len() && codes[pos] >> shift == key {
+                pos += 1;
+            }
+            if pos > start {
+                runs.insert(key, (start as u32, pos as u32));
+            }
         }
         Grid {
             level,
@@ -267,9 +297,9 @@ impl Grid {
         }
     }
 
-    /// The cell key of the point at curve position `pos`.
-    pub fn key(&self, morton: &Morton, pos: u32) -> u64 {
-        morton.codes[pos as usize] >> (3 * (MORTON_BITS - self.level))
+    /// The cell key at `level` of the point at curve position `pos`.
+    pub fn key(morton: &Morton, level: u32, pos: u32) -> u64 {
+        morton.codes[pos as usize] >> (3 * (MORTON_BITS - level))
     }
 
     /// The exact [`K`] nearest neighbours (positions along the curve; `points` in curve
@@ -367,6 +397,14 @@ mod tests {
     }
 
     #[test]
+    fn compact_inverts_spread() {
+        for v in [0u64, 1, 2, 12_345, 0x1f_ffff, 0x15_5555] {
+            assert_eq!(compact21(spread21(v)), v);
+            assert_eq!(compact21(interleave([7, v, 3]) >> 1), v);
+        }
+    }
+
+    #[test]
     fn grid_neighbours_are_exact_or_refused() {
         // A dense plane, a sparse volume and duplicated points, in a box far from cubic.
         let mut rng = ChaCha8Rng::seed_from_u64(3);
@@ -396,13 +434,17 @@ mod tests {
         reach.sort_by(f64::total_cmp);
         let sized = morton.level_for(reach[reach.len() * 9 / 10]);
         for level in [sized - 2, sized - 1, sized, sized + 1] {
-            let grid = Grid::new(&morton, level);
+            let mut keys: Vec<u64> = (0..sorted.len() as u32)
+                .map(|p| Grid::key(&morton, level, p))
+                .collect();
+            keys.dedup();
+            let grid = Grid::covering(&morton, level, &keys);
             let mut scratch = BlockScratch::default();
             let (mut answered, mut start) = (0, 0);
             while start < sorted.len() {
-                let key = grid.key(&morton, start as u32);
+                let key = Grid::key(&morton, level, start as u32);
                 let len = (start..sorted.len())
-                    .take_while(|&p| grid.key(&morton, p as u32) == key)
+                    .take_while(|&p| Grid::key(&morton, level, p as u32) == key)
                     .count();
                 let queries: Vec<u32> = (start as u32..(start + len) as u32).collect();
                 grid.nearest_in_cell(&morton, &sorted, &queries, &mut scratch, |q, nb| {
