@@ -4,9 +4,11 @@
 //!
 //! The local geometry is computed on demand ([`Cloud::prepare`], [`Cloud::local`]) and kept:
 //! a fit reads it for its subsample and for the points near its candidate cylinders, not for a
-//! wall or a floor far from any pipe. The k nearest neighbours come from a k-d tree (kiddo),
-//! queried in batches along a Z-order (Morton) curve so that consecutive queries share the
-//! cache (twice as fast as in input order).
+//! wall or a floor far from any pipe. The points are kept along a Z-order (Morton) curve
+//! (`measure::zorder`); the methods named `_at` take positions along it, and passes in that
+//! order read memory in order. The k nearest neighbours of a large batch (the band around a
+//! candidate cylinder) come from the uniform grid sized to the batch's spacing, those of
+//! scattered points and of the grid's few refusals from a k-d tree (kiddo); both are exact.
 
 use std::num::NonZero;
 use std::sync::OnceLock;
@@ -340,7 +342,7 @@ impl Cloud {
     /// Computes the local geometry of the points at curve positions `positions` that lack
     /// it, in parallel in curve order (neighbouring queries share the cache). A large batch
     /// (a band around a cylinder) is answered by the uniform grid whose cells match the
-    /// batch's point spacing (measured on a pilot of [`PILOT`] of its points): each cell's
+    /// batch's point spacing (measured on a pilot of 512 of its points): each cell's
     /// queries scan its 3×3×3 block, and the few whose neighbourhood may reach beyond the
     /// block go to the k-d tree. Both give the exact k nearest neighbours.
     pub fn prepare_at(&self, positions: &[usize]) {

@@ -1,7 +1,8 @@
 //! The measurement job (layer 4): the cloud around a local origin with its k-d tree and normals
-//! (`cloud`), robust cylinder fitting (`cylinder`), the site's targets (`targets`), the scale
-//! from them against the TLS (`scale`), and the pipe measured in metres with its reference
-//! (`pipe`).
+//! (`cloud`), its points in Z-order with the uniform grids that order gives (`zorder`: the exact
+//! nearest neighbours of a band of points), robust cylinder fitting (`cylinder`), the site's
+//! targets (`targets`), the scale from them against the TLS (`scale`), and the pipe measured in
+//! metres with its reference (`pipe`).
 
 pub mod cloud;
 pub mod cylinder;
