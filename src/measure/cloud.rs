@@ -19,6 +19,7 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
 use super::zorder::{self, BlockScratch, Grid, Morton};
+use crate::geometry::bounds;
 
 /// A cloud around a local origin; normals and local noise on demand.
 pub struct Cloud {
@@ -234,23 +235,13 @@ impl Cloud {
         let morton = Morton::new(&points);
         // The tree's items are positions along the curve: built from sorted entries, its
         // leaves hold spatially coherent runs.
-        let sorted: Vec<[f64; 3]> = morton
-            .order
-            .par_iter()
-            .map(|&i| points[i as usize].into())
-            .collect();
+        let sorted = morton.gather(&points);
         let tree =
             Tree::new_from_slice(&sorted).map_err(|e| CloudError::Index(format!("{e:?}")))?;
         let boxes = sorted
             .par_chunks(BOX_RUN)
             .map(|run| {
-                let (lo, hi) = run.iter().fold(
-                    (
-                        Vector3::repeat(f64::INFINITY),
-                        Vector3::repeat(f64::NEG_INFINITY),
-                    ),
-                    |(lo, hi), p| (lo.inf(&Vector3::from(*p)), hi.sup(&Vector3::from(*p))),
-                );
+                let (lo, hi) = bounds(run.iter().map(|p| Vector3::from(*p)));
                 ((lo + hi) / 2.0, (hi - lo).norm() / 2.0)
             })
             .collect();
@@ -388,8 +379,8 @@ impl Cloud {
         let mut keys: Vec<u64> = Vec::new();
         let mut rest = &missing[..];
         while let Some(&first) = rest.first() {
-            let key = Grid::key(&self.morton, level, first);
-            let len = rest.partition_point(|&p| Grid::key(&self.morton, level, p) == key);
+            let key = self.morton.key(level, first);
+            let len = rest.partition_point(|&p| self.morton.key(level, p) == key);
             let (group, tail) = rest.split_at(len);
             groups.push(group);
             keys.push(key);

@@ -58,8 +58,15 @@ impl Cylinder {
     /// The outward unit radial direction at `p`.
     #[must_use]
     pub fn radial(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        self.offset(p).normalize()
+    }
+
+    /// The vector from the axis to `p`, orthogonal to the axis (its length is `p`'s distance
+    /// from the axis).
+    #[must_use]
+    pub fn offset(&self, p: &Vector3<f64>) -> Vector3<f64> {
         let w = p - self.point;
-        (w - w.dot(&self.direction) * self.direction).normalize()
+        w - w.dot(&self.direction) * self.direction
     }
 }
 
@@ -204,8 +211,9 @@ fn hypothesis(
     })
 }
 
-/// Whether the point at curve position `k` ([`Cloud::position`]) supports `cyl` within its own threshold ([`point_threshold`] over
-/// `floor`), its normal within `cos_max` of the radial direction: its residual and threshold.
+/// Whether the point at curve position `k` ([`Cloud::position`]) supports `cyl` within its own
+/// threshold ([`point_threshold`] over `floor`), its normal within `cos_max` of the radial
+/// direction: its residual and threshold.
 /// The point's local geometry is read (computed if need be) only when the residual is within
 /// the largest threshold any point can have.
 fn supports(
@@ -217,8 +225,7 @@ fn supports(
 ) -> Option<(f64, f64)> {
     // The radial vector once: its length gives the residual, and the normal test compares
     // |n·v| with cos_max·|v| (no second square root, no division).
-    let w = cloud.point_at(k) - cyl.point;
-    let v = w - w.dot(&cyl.direction) * cyl.direction;
+    let v = cyl.offset(&cloud.point_at(k));
     let rho = v.norm();
     let e = rho - cyl.radius;
     if e.abs() > max_threshold(cloud, floor) {
@@ -229,7 +236,8 @@ fn supports(
     (e.abs() <= t && normal.dot(&v).abs() >= cos_max * rho).then_some((e, t))
 }
 
-/// MSAC cost of the point at curve position `k` for `cyl`: (e/t)² for a supporter, 1 otherwise.
+/// MSAC cost of the point at curve position `k` for `cyl`: (e/t)² for a supporter, 1
+/// otherwise.
 fn msac_cost(cloud: &Cloud, k: usize, cyl: &Cylinder, floor: f64, cos_max: f64) -> f64 {
     supports(cloud, k, cyl, floor, cos_max).map_or(1.0, |(e, t)| (e / t).powi(2))
 }
@@ -274,10 +282,10 @@ const COVERAGE_BINS: usize = 36;
 /// bins.
 const FILLED_BIN_FRACTION: f64 = 0.2;
 
-/// The arc (rad) of the circumference the points at curve positions `idx` that support `cyl` fill: the number
-/// of filled 10° bins of their azimuths about the axis, times 10°. A span alone is not enough:
-/// a slightly bent strip of a plane (a stereo scan's table top) plus a few stray supporters on
-/// the far side spans a wide arc but fills a narrow one.
+/// The arc (rad) of the circumference the points at curve positions `idx` that support `cyl`
+/// fill: the number of filled 10° bins of their azimuths about the axis, times 10°. A span
+/// alone is not enough: a slightly bent strip of a plane (a stereo scan's table top) plus a few
+/// stray supporters on the far side spans a wide arc but fills a narrow one.
 fn normal_coverage(
     cloud: &Cloud,
     idx: &[usize],
@@ -325,8 +333,8 @@ fn max_threshold(cloud: &Cloud, floor: f64) -> f64 {
 }
 
 /// Step 3: Gauss–Newton on (axis direction, axis point, radius) over the curve positions
-/// `idx`, minimising
-/// `Σ (|(p − a)×d| − r)²`. Returns the cylinder and `(JᵀJ)⁻¹` at the solution.
+/// `idx`, minimising `Σ (|(p − a)×d| − r)²`. Returns the cylinder and `(JᵀJ)⁻¹` at the
+/// solution.
 fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Matrix5<f64>, f64)> {
     let mut cyl = start;
     let mut cov = Matrix5::zeros();
@@ -495,7 +503,7 @@ fn fit_among(
     // object (a mug: 3 % of a scan) has too few sample points for the sample's cost to rank it
     // reliably against artefacts of similar support.
     // MSAC over every candidate: the points beyond the largest threshold cost 1 each, the
-    // near ones (`near`, in candidate order) are scored.
+    // near ones (`near`, in curve order) are scored.
     // Blocks of 16 chunks of 4096, the chunks' sums added in order; stops (None) as soon as
     // the cost exceeds `bound` (every cost is at least 0, so the total would too).
     let msac_within = |c: &Cylinder, near: &[usize], bound: f64| -> Option<f64> {

@@ -11,6 +11,8 @@ use std::hash::{BuildHasherDefault, Hasher};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
+use crate::geometry::bounds;
+
 /// Bits per axis of the Morton codes.
 pub(crate) const MORTON_BITS: u32 = 21;
 
@@ -56,12 +58,7 @@ pub(crate) struct Morton {
 impl Morton {
     /// Orders `points` (finite, at least one) along the curve.
     pub fn new(points: &[Vector3<f64>]) -> Self {
-        let lo = points
-            .iter()
-            .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(p));
-        let hi = points
-            .iter()
-            .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(p));
+        let (lo, hi) = bounds(points.iter().copied());
         let extent = (hi - lo).max();
         let scale = if extent > 0.0 {
             f64::from((1u32 << MORTON_BITS) - 1) / extent
@@ -87,6 +84,19 @@ impl Morton {
         }
         (m.codes, m.order) = keyed.into_iter().unzip();
         m
+    }
+
+    /// `points` (indexed as given to [`Morton::new`]) in curve order.
+    pub fn gather(&self, points: &[Vector3<f64>]) -> Vec<[f64; 3]> {
+        self.order
+            .par_iter()
+            .map(|&i| points[i as usize].into())
+            .collect()
+    }
+
+    /// The cell key at `level` of the point at curve position `pos`.
+    pub fn key(&self, level: u32, pos: u32) -> u64 {
+        self.codes[pos as usize] >> (3 * (MORTON_BITS - level))
     }
 
     /// Integer coordinates of `p`'s finest cell (clamped to the box).
@@ -297,11 +307,6 @@ impl Grid {
         }
     }
 
-    /// The cell key at `level` of the point at curve position `pos`.
-    pub fn key(morton: &Morton, level: u32, pos: u32) -> u64 {
-        morton.codes[pos as usize] >> (3 * (MORTON_BITS - level))
-    }
-
     /// The exact [`K`] nearest neighbours (positions along the curve; `points` in curve
     /// order) of each query position in `queries`, all in one cell. A query whose
     /// neighbourhood may reach beyond the cell's 3×3×3 block (its k-th distance exceeds the
@@ -420,11 +425,7 @@ mod tests {
         }));
         pts.extend(pts[..200].to_vec());
         let morton = Morton::new(&pts);
-        let sorted: Vec<[f64; 3]> = morton
-            .order
-            .iter()
-            .map(|&i| pts[i as usize].into())
-            .collect();
+        let sorted = morton.gather(&pts);
         // The 90th percentile of the 16th-neighbour distances: a grid at least that coarse
         // answers at least nine queries in ten (every block reaches one cell beyond its
         // query), finer grids refuse more; every answer is exact.
@@ -435,16 +436,16 @@ mod tests {
         let sized = morton.level_for(reach[reach.len() * 9 / 10]);
         for level in [sized - 2, sized - 1, sized, sized + 1] {
             let mut keys: Vec<u64> = (0..sorted.len() as u32)
-                .map(|p| Grid::key(&morton, level, p))
+                .map(|p| morton.key(level, p))
                 .collect();
             keys.dedup();
             let grid = Grid::covering(&morton, level, &keys);
             let mut scratch = BlockScratch::default();
             let (mut answered, mut start) = (0, 0);
             while start < sorted.len() {
-                let key = Grid::key(&morton, level, start as u32);
+                let key = morton.key(level, start as u32);
                 let len = (start..sorted.len())
-                    .take_while(|&p| Grid::key(&morton, level, p as u32) == key)
+                    .take_while(|&p| morton.key(level, p as u32) == key)
                     .count();
                 let queries: Vec<u32> = (start as u32..(start + len) as u32).collect();
                 grid.nearest_in_cell(&morton, &sorted, &queries, &mut scratch, |q, nb| {

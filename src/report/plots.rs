@@ -10,6 +10,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::ReportError;
+use crate::geometry::bounds;
 use crate::io::atomic::write_bytes_atomic;
 
 fn draw_err<E: std::fmt::Display>(what: &'static str) -> impl Fn(E) -> ReportError {
@@ -176,12 +177,7 @@ pub fn camera_network(
         .map(|c| c.coords)
         .chain(targets.iter().copied())
         .collect();
-    let lo = all
-        .iter()
-        .fold(Vector3::repeat(f64::INFINITY), |m, p| m.inf(p));
-    let hi = all
-        .iter()
-        .fold(Vector3::repeat(f64::NEG_INFINITY), |m, p| m.sup(p));
+    let (lo, hi) = bounds(all.iter().copied());
     let span = (hi - lo).amax().max(1e-9);
     let arrow = 0.08 * span;
     let mut svg = String::new();
