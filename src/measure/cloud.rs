@@ -8,17 +8,15 @@
 //! (`measure::zorder`); the methods named `_at` take positions along it, and passes in that
 //! order read memory in order. The k nearest neighbours of a large batch (the band around a
 //! candidate cylinder) come from the uniform grid sized to the batch's spacing, those of
-//! scattered points and of the grid's few refusals from a k-d tree (kiddo); both are exact.
+//! scattered points and of the grid's few refusals from the cells a bound on their reach
+//! picks ([`Morton::nearest`]); both are exact, and neither needs a tree.
 
-use std::num::NonZero;
 use std::sync::OnceLock;
 
-use kiddo::leaf_strategy::FlatVec;
-use kiddo::{Eytzinger, KdTree, SquaredEuclidean};
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
 
-use super::zorder::{self, BlockScratch, Grid, Morton};
+use super::zorder::{self, BlockScratch, Grid, Morton, OctreeScratch};
 use crate::geometry::bounds;
 
 /// A cloud around a local origin; normals and local noise on demand.
@@ -35,9 +33,8 @@ pub struct Cloud {
     /// subsample's. A point in a sparser neighbourhood gets no wider threshold.
     pub noise_cap: f64,
     morton: Morton,
-    /// The points in curve order (the k-d tree's items and the grids' runs index it).
+    /// The points in curve order (the grids' runs index it).
     sorted: Vec<[f64; 3]>,
-    tree: Tree,
     /// Per run of [`BOX_RUN`] curve positions: the centre and half diagonal of its bounding
     /// box (along the curve, a run is a compact patch: a pass can skip a run whose box is
     /// far from what it looks for).
@@ -57,13 +54,6 @@ impl std::fmt::Debug for Cloud {
             .finish_non_exhaustive()
     }
 }
-
-/// The k-d tree: flat leaves of 16 points (a fifth faster for 16-neighbour queries than
-/// kiddo's default immutable tree with 32-point arenas, and quicker to build).
-type Tree = KdTree<f64, u32, Eytzinger, FlatVec<f64, u32, 3, 16>, 3, 16>;
-
-/// Per-thread query scratch of [`Tree`].
-type Scratch = kiddo::QueryScratch<Eytzinger, f64, 3>;
 
 /// Points whose local noise sets [`Cloud::surface_noise`] and [`Cloud::noise_cap`].
 pub const NOISE_SAMPLE: usize = 32_768;
@@ -92,9 +82,6 @@ pub enum CloudError {
         /// Points needed.
         required: usize,
     },
-    /// The k-d tree could not be built.
-    #[error("cannot index the cloud: {0}")]
-    Index(String),
 }
 
 /// The mean of the finite points, accumulated relative to the first one (exact for clouds far
@@ -213,8 +200,8 @@ fn robust_normal(nb: &[Vector3<f64>]) -> Option<(Vector3<f64>, f64)> {
 
 impl Cloud {
     /// Prepares a cloud: drops non-finite points, moves to the local origin, orders the points
-    /// along a Z-order curve, builds the k-d tree and estimates the noise scale from an evenly
-    /// strided subsample (in parallel; deterministic).
+    /// along a Z-order curve and estimates the noise scale from an evenly strided subsample
+    /// (in parallel; deterministic).
     ///
     /// # Errors
     /// [`CloudError::TooFewPoints`] for fewer than [`NORMAL_NEIGHBOURS`] finite points.
@@ -233,11 +220,7 @@ impl Cloud {
         let origin = local_origin(&finite);
         let points: Vec<Vector3<f64>> = finite.par_iter().map(|p| p - origin).collect();
         let morton = Morton::new(&points);
-        // The tree's items are positions along the curve: built from sorted entries, its
-        // leaves hold spatially coherent runs.
         let sorted = morton.gather(&points);
-        let tree =
-            Tree::new_from_slice(&sorted).map_err(|e| CloudError::Index(format!("{e:?}")))?;
         let boxes = sorted
             .par_chunks(BOX_RUN)
             .map(|run| {
@@ -254,13 +237,12 @@ impl Cloud {
             noise_cap: 0.0,
             morton,
             sorted,
-            tree,
             boxes,
         };
         // The noise scale from every `stride`-th point along the curve (spread evenly).
         let stride = n.div_ceil(NOISE_SAMPLE);
         let subsample: Vec<u32> = (0..n as u32).step_by(stride).collect();
-        cloud.prepare_with_tree(&subsample);
+        cloud.prepare_scattered(&subsample);
         let mut scales: Vec<f64> = subsample
             .iter()
             .map(|&pos| cloud.local_at(pos as usize).1)
@@ -335,10 +317,12 @@ impl Cloud {
     /// (a band around a cylinder) is answered by the uniform grid whose cells match the
     /// batch's point spacing (measured on a pilot of 512 of its points): each cell's
     /// queries scan its 3×3×3 block, and the few whose neighbourhood may reach beyond the
-    /// block go to the k-d tree. Both give the exact k nearest neighbours.
+    /// block are answered alone ([`Morton::nearest`]). Both give the exact k nearest
+    /// neighbours.
     pub fn prepare_at(&self, positions: &[usize]) {
         let mut missing: Vec<u32> = positions
-            .iter()
+            .par_iter()
+            .with_min_len(4096)
             .filter(|&&pos| self.local[pos].get().is_none())
             .map(|&pos| pos as u32)
             .collect();
@@ -347,7 +331,7 @@ impl Cloud {
         }
         missing.dedup();
         if missing.len() < GRID_BATCH {
-            self.prepare_with_tree(&missing);
+            self.prepare_scattered(&missing);
             return;
         }
         // The pilot: evenly strided along the curve; its 16th-neighbour distances size the
@@ -356,21 +340,18 @@ impl Cloud {
         let pilot: Vec<u32> = missing.iter().step_by(stride).copied().collect();
         let mut reach: Vec<f64> = pilot
             .par_iter()
-            .map_init(
-                || self.tree.create_scratch::<SquaredEuclidean<f64>>(),
-                |scratch, &pos| {
-                    let (local, d2) = self.compute_local(pos, Some(scratch));
-                    let _ = self.local[pos as usize].set(local);
-                    d2.sqrt()
-                },
-            )
+            .map_init(OctreeScratch::default, |scratch, &pos| {
+                let (local, d2) = self.compute_local(pos, scratch);
+                let _ = self.local[pos as usize].set(local);
+                d2.sqrt()
+            })
             .collect();
         reach.sort_by(f64::total_cmp);
         let Some(&cell) = reach.get(reach.len() * 9 / 10) else {
             return;
         };
         if !(cell.is_finite() && cell > 0.0) {
-            self.prepare_with_tree(&missing);
+            self.prepare_scattered(&missing);
             return;
         }
         let level = self.morton.level_for(cell);
@@ -388,17 +369,12 @@ impl Cloud {
         }
         // Scattered queries (about one per cell) gain nothing from the block scan.
         if groups.len() * 2 > missing.len() {
-            self.prepare_with_tree(&missing);
+            self.prepare_scattered(&missing);
             return;
         }
         let grid = Grid::covering(&self.morton, level, &keys);
         groups.par_iter().with_min_len(16).for_each_init(
-            || {
-                (
-                    BlockScratch::default(),
-                    self.tree.create_scratch::<SquaredEuclidean<f64>>(),
-                )
-            },
+            || (BlockScratch::default(), OctreeScratch::default()),
             |(block, scratch), group| {
                 grid.nearest_in_cell(&self.morton, &self.sorted, group, block, |pos, nb| {
                     let slot = &self.local[pos as usize];
@@ -413,7 +389,7 @@ impl Cloud {
                             }
                             local_geometry(&pts[..nb.len])
                         }
-                        None => self.compute_local(pos, Some(scratch)).0,
+                        None => self.compute_local(pos, scratch).0,
                     };
                     let _ = slot.set(local);
                 });
@@ -421,14 +397,13 @@ impl Cloud {
         );
     }
 
-    /// [`Cloud::prepare`] through the k-d tree, for the curve positions `missing` (sorted).
-    fn prepare_with_tree(&self, missing: &[u32]) {
-        missing.par_iter().for_each_init(
-            || self.tree.create_scratch::<SquaredEuclidean<f64>>(),
-            |scratch, &pos| {
-                let _ = self.local[pos as usize].set(self.compute_local(pos, Some(scratch)).0);
-            },
-        );
+    /// [`Cloud::prepare`] one query at a time, for the curve positions `missing` (sorted).
+    fn prepare_scattered(&self, missing: &[u32]) {
+        missing
+            .par_iter()
+            .for_each_init(OctreeScratch::default, |scratch, &pos| {
+                let _ = self.local[pos as usize].set(self.compute_local(pos, scratch).0);
+            });
     }
 
     /// Unit normal (sign arbitrary) and local noise of point `k`, computed on first use.
@@ -440,27 +415,23 @@ impl Cloud {
     /// [`Cloud::local`] of the point at curve position `pos`.
     #[must_use]
     pub fn local_at(&self, pos: usize) -> (Vector3<f64>, f64) {
-        *self.local[pos].get_or_init(|| self.compute_local(pos as u32, None).0)
+        *self.local[pos].get_or_init(|| {
+            self.compute_local(pos as u32, &mut OctreeScratch::default())
+                .0
+        })
     }
 
     /// The local geometry of the point at curve position `pos` from its [`NORMAL_NEIGHBOURS`]
-    /// nearest neighbours in the k-d tree, and the squared distance of the farthest of them.
-    fn compute_local(&self, pos: u32, scratch: Option<&mut Scratch>) -> ((Vector3<f64>, f64), f64) {
-        let q = self.sorted[pos as usize];
-        let nn = NonZero::new(NORMAL_NEIGHBOURS).unwrap_or(NonZero::<usize>::MIN);
-        let query = self.tree.query(&q).nearest_n::<SquaredEuclidean<f64>>(nn);
-        // A caller's scratch saves kiddo's thread-local lookup per query.
-        let found = match scratch {
-            Some(s) => query.with_scratch(s).execute(),
-            None => query.execute(),
-        };
+    /// nearest neighbours ([`Morton::nearest`]), and the squared distance of the farthest of
+    /// them.
+    fn compute_local(&self, pos: u32, scratch: &mut OctreeScratch) -> ((Vector3<f64>, f64), f64) {
+        let found = self.morton.nearest(&self.sorted, pos, scratch);
         let mut nb = [Vector3::zeros(); NORMAL_NEIGHBOURS];
-        for (slot, r) in nb.iter_mut().zip(&found) {
-            *slot = Vector3::from(self.sorted[r.item as usize]);
+        for (slot, &q) in nb.iter_mut().zip(&found.pos[..found.len]) {
+            *slot = Vector3::from(self.sorted[q as usize]);
         }
-        let m = found.len().min(NORMAL_NEIGHBOURS);
-        let d2 = found.iter().map(|r| r.distance).fold(0.0, f64::max);
-        (local_geometry(&nb[..m]), d2)
+        let d2 = found.d2[..found.len].iter().copied().fold(0.0, f64::max);
+        (local_geometry(&nb[..found.len]), d2)
     }
 }
 

@@ -242,13 +242,18 @@ fn msac_cost(cloud: &Cloud, k: usize, cyl: &Cylinder, floor: f64, cos_max: f64) 
     supports(cloud, k, cyl, floor, cos_max).map_or(1.0, |(e, t)| (e / t).powi(2))
 }
 
-/// The curve positions of `pool` within the largest threshold of `cyl` (those whose local
-/// geometry [`supports`] may read), in `pool`'s order.
-fn near(cloud: &Cloud, pool: &[usize], cyl: &Cylinder, floor: f64) -> Vec<usize> {
+/// A pool of curve positions (sorted) cut into its runs within one box of
+/// [`Cloud::run_box`].
+fn box_runs(pool: &[usize]) -> Vec<&[usize]> {
+    pool.chunk_by(|a, b| a / BOX_RUN == b / BOX_RUN).collect()
+}
+
+/// The curve positions of the pool (cut by [`box_runs`]) within the largest threshold of
+/// `cyl` (those whose local geometry [`supports`] may read), in the pool's order.
+fn near(cloud: &Cloud, runs: &[&[usize]], cyl: &Cylinder, floor: f64) -> Vec<usize> {
     let t = max_threshold(cloud, floor);
-    // Runs of the pool within one box: a box whose points' axis distances (the centre's ±
-    // the half diagonal) all miss `radius ± t` is skipped whole.
-    let runs: Vec<&[usize]> = pool.chunk_by(|a, b| a / BOX_RUN == b / BOX_RUN).collect();
+    // A box whose points' axis distances (the centre's ± the half diagonal) all miss
+    // `radius ± t` is skipped whole.
     runs.par_iter()
         .with_min_len(16)
         .flat_map_iter(|run| {
@@ -532,6 +537,7 @@ fn fit_among(
             .filter(|&k| supports(cloud, k, c, threshold, cos_max).is_some())
             .collect()
     };
+    let runs = box_runs(pool);
     let in_range = |c: &Cylinder| c.radius >= config.radius_min && c.radius <= config.radius_max;
     let refined: Vec<Cylinder> = scored
         .iter()
@@ -558,7 +564,7 @@ fn fit_among(
     let mut best: Option<(f64, Cylinder)> = None;
     for r in refined {
         let bound = best.as_ref().map_or(f64::INFINITY, |b| b.0);
-        let band = near(cloud, pool, &r, threshold);
+        let band = near(cloud, &runs, &r, threshold);
         if (pool.len() - band.len()) as f64 > bound {
             continue;
         }
@@ -575,7 +581,7 @@ fn fit_among(
     let mut inliers: Vec<usize> = Vec::new();
     let mut result = None;
     for _ in 0..10 {
-        let band = near(cloud, pool, &cyl, threshold);
+        let band = near(cloud, &runs, &cyl, threshold);
         cloud.prepare_at(&band);
         let next: Vec<usize> = band
             .par_chunks(4096)
@@ -600,12 +606,14 @@ fn fit_among(
         }
     }
     let (var_r, ss) = result.ok_or_else(|| not_found(0))?;
-    let mut abs: Vec<f64> = inliers
-        .iter()
-        .map(|&k| cyl.residual(&cloud.point_at(k)).abs())
+    // The median absolute residual: non-negative floats order like their bits.
+    let mut abs: Vec<u64> = inliers
+        .par_iter()
+        .map(|&k| cyl.residual(&cloud.point_at(k)).abs().to_bits())
         .collect();
-    abs.sort_by(f64::total_cmp);
-    let scale = 1.4826 * abs[abs.len() / 2];
+    let middle = abs.len() / 2;
+    let (_, &mut median, _) = abs.select_nth_unstable(middle);
+    let scale = 1.4826 * f64::from_bits(median);
     let mut inlier_indices: Vec<usize> = inliers.iter().map(|&pos| cloud.index_at(pos)).collect();
     inlier_indices.par_sort_unstable();
     Ok(CylinderFit {

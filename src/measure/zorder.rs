@@ -121,6 +121,258 @@ impl Morton {
     }
 }
 
+/// Curve neighbours on each side of a scattered query whose k-th nearest distance bounds the
+/// query's own ([`Morton::nearest`]).
+const WINDOW: usize = 16;
+
+/// Squared distance of two points.
+fn dist2(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
+
+impl Morton {
+    /// The first curve position whose code is at least `code`, found by galloping from
+    /// `hint` (a neighbouring cell's run is usually near the query's along the curve).
+    fn lower_bound(&self, code: u64, hint: usize) -> usize {
+        let codes = &self.codes;
+        let n = codes.len();
+        let hint = hint.min(n);
+        // The answer lies in lo..=hi.
+        let (mut lo, mut hi) = (0, n);
+        let mut step = 1;
+        if hint < n && codes[hint] < code {
+            lo = hint + 1;
+            while hint + step < n {
+                if codes[hint + step] >= code {
+                    hi = hint + step;
+                    break;
+                }
+                lo = hint + step + 1;
+                step *= 2;
+            }
+        } else {
+            hi = hint;
+            while step <= hint {
+                if codes[hint - step] < code {
+                    lo = hint - step + 1;
+                    break;
+                }
+                hi = hint - step;
+                step *= 2;
+            }
+        }
+        lo + codes[lo..hi].partition_point(|&c| c < code)
+    }
+
+    /// The exact [`K`] nearest neighbours (fewer in a smaller cloud) of the point at curve
+    /// position `pos` (`points` in curve order), from the curve's implicit octree (a cell is
+    /// a run of the order; its eight children split the run by three bits of the codes):
+    /// 1. the k nearest of its ±[`WINDOW`] curve neighbours give a first answer and bound
+    ///    the k-th distance by `r`;
+    /// 2. the cells at least `r` wide that meet the box `q ± r` hold every neighbour (cell
+    ///    coordinates are monotone in each coordinate); their runs are found by galloping
+    ///    from `pos`;
+    /// 3. depth first, nearest child first: a cell beyond the current k-th distance is
+    ///    skipped, a cell of at most [`LEAF`] points is scanned, a larger one split.
+    pub fn nearest(&self, points: &[[f64; 3]], pos: u32, scratch: &mut OctreeScratch) -> Nearest {
+        let n = points.len();
+        let q = points[pos as usize];
+        let span = (2 * WINDOW + 1).min(n);
+        let first = (pos as usize).saturating_sub(WINDOW).min(n - span);
+        let mut best = TopK::new();
+        for (p, i) in points[first..first + span].iter().zip(first as u32..) {
+            best.offer(dist2(p, &q).to_bits(), i);
+        }
+        let r2 = best.worst();
+        // Widened for the rounding of the distances and of the box's corners.
+        let r = f64::from_bits(r2).sqrt() * (1.0 + 1e-9)
+            + 1e-12 * (1.0 + q.iter().map(|v| v.abs()).sum::<f64>());
+        let level = if best.len < K { 0 } else { self.level_for(r) };
+        let shift = MORTON_BITS - level;
+        let q3 = Vector3::from(q);
+        let below = self.finest(&q3.add_scalar(-r)).map(|v| v >> shift);
+        let above = self.finest(&q3.add_scalar(r)).map(|v| v >> shift);
+        scratch.stack.clear();
+        let mut roots = [Cell::default(); 27];
+        let mut count = 0;
+        for cz in below[2]..=above[2] {
+            for cy in below[1]..=above[1] {
+                for cx in below[0]..=above[0] {
+                    let c = [cx, cy, cz];
+                    let (start, end) =
+                        self.run(level, interleave(c), pos as usize, &mut scratch.runs);
+                    if end > start {
+                        roots[count] = self.cell(&q, level, c, start, end);
+                        count += 1;
+                    }
+                }
+            }
+        }
+        let stack = &mut scratch.stack;
+        push_nearest_last(stack, &mut roots[..count]);
+        let window = first..first + span;
+        while let Some(cell) = stack.pop() {
+            if cell.gap2 > f64::from_bits(best.worst()) {
+                continue;
+            }
+            let (start, end) = (cell.start as usize, cell.end as usize);
+            if end - start <= LEAF || cell.level == MORTON_BITS {
+                for (p, i) in points[start..end].iter().zip(start..) {
+                    if !window.contains(&i) {
+                        best.offer(dist2(p, &q).to_bits(), i as u32);
+                    }
+                }
+                continue;
+            }
+            // The eight children's runs: the run split by the codes' next three bits.
+            let level = cell.level + 1;
+            let child_shift = 3 * (MORTON_BITS - level);
+            let run = &self.codes[start..end];
+            let mut children = [Cell::default(); 8];
+            let mut count = 0;
+            let mut lo = start;
+            for octant in 0..8u64 {
+                let hi = if octant == 7 {
+                    end
+                } else {
+                    start + run.partition_point(|&c| (c >> child_shift) & 7 <= octant)
+                };
+                if hi > lo {
+                    let c: [u64; 3] =
+                        std::array::from_fn(|a| 2 * cell.coords[a] + ((octant >> a) & 1));
+                    children[count] = self.cell(&q, level, c, lo, hi);
+                    count += 1;
+                }
+                lo = hi;
+            }
+            push_nearest_last(stack, &mut children[..count]);
+        }
+        best.into_nearest()
+    }
+
+    /// The run of the cell `key` at `level`, from `cache` or found by galloping from `hint`.
+    fn run(&self, level: u32, key: u64, hint: usize, cache: &mut RunCache) -> (usize, usize) {
+        // The level as a leading bit: every (level, key) has its own tag, and none is 0.
+        let tag = key | (1 << (3 * level));
+        let slot = &mut cache.0[(tag.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 56) as usize];
+        if slot.0 == tag {
+            return (slot.1 as usize, slot.2 as usize);
+        }
+        let shift = 3 * (MORTON_BITS - level);
+        let start = self.lower_bound(key << shift, hint);
+        let end = self.lower_bound((key + 1) << shift, start);
+        *slot = (tag, start as u32, end as u32);
+        (start, end)
+    }
+
+    /// The cell at `level` with integer coordinates `c` and run `start..end`, with its
+    /// squared distance from `q` (its box widened by a millionth of a cell for the rounding
+    /// of the cell coordinates).
+    fn cell(&self, q: &[f64; 3], level: u32, c: [u64; 3], start: usize, end: usize) -> Cell {
+        let size = self.cell_size(level);
+        let pad = 1e-6 * size;
+        let gap2 = (0..3)
+            .map(|a| {
+                let lo = self.lo[a] + c[a] as f64 * size - pad;
+                let hi = lo + size + 2.0 * pad;
+                (lo - q[a]).max(q[a] - hi).max(0.0).powi(2)
+            })
+            .sum();
+        Cell {
+            level,
+            coords: c,
+            start: start as u32,
+            end: end as u32,
+            gap2,
+        }
+    }
+}
+
+/// Largest run [`Morton::nearest`] scans without splitting it.
+const LEAF: usize = 32;
+
+/// A cell of the curve's octree met by [`Morton::nearest`].
+#[derive(Clone, Copy, Default)]
+struct Cell {
+    level: u32,
+    coords: [u64; 3],
+    start: u32,
+    end: u32,
+    /// Squared distance from the query to the cell's box.
+    gap2: f64,
+}
+
+/// Per-thread scratch of [`Morton::nearest`]: its stack of cells, and the runs of the cells
+/// it started from lately (queries in curve order share most of them).
+#[derive(Default)]
+pub(crate) struct OctreeScratch {
+    stack: Vec<Cell>,
+    runs: RunCache,
+}
+
+/// A direct-mapped cache of 256 cells' runs: (tag, start, end), tag 0 when empty.
+struct RunCache([(u64, u32, u32); 256]);
+
+impl Default for RunCache {
+    fn default() -> Self {
+        RunCache([(0, 0, 0); 256])
+    }
+}
+
+/// Pushes `cells` so that the nearest is popped first.
+fn push_nearest_last(stack: &mut Vec<Cell>, cells: &mut [Cell]) {
+    cells.sort_unstable_by(|a, b| b.gap2.total_cmp(&a.gap2));
+    stack.extend_from_slice(cells);
+}
+
+/// The [`K`] smallest keys offered (squared distances' bits) with their positions, sorted;
+/// of equal keys the first offered.
+struct TopK {
+    keys: [u64; K],
+    pos: [u32; K],
+    len: usize,
+}
+
+impl TopK {
+    fn new() -> Self {
+        TopK {
+            keys: [u64::MAX; K],
+            pos: [0; K],
+            len: 0,
+        }
+    }
+
+    /// The k-th smallest key so far (`u64::MAX` until k are held).
+    fn worst(&self) -> u64 {
+        self.keys[K - 1]
+    }
+
+    fn offer(&mut self, key: u64, pos: u32) {
+        if key >= self.keys[K - 1] {
+            return;
+        }
+        let mut i = self.len.min(K - 1);
+        while i > 0 && key < self.keys[i - 1] {
+            self.keys[i] = self.keys[i - 1];
+            self.pos[i] = self.pos[i - 1];
+            i -= 1;
+        }
+        self.keys[i] = key;
+        self.pos[i] = pos;
+        self.len = (self.len + 1).min(K);
+    }
+
+    fn into_nearest(self) -> Nearest {
+        let mut out = Nearest::new();
+        out.len = self.len;
+        out.pos = self.pos;
+        for (d2, &key) in out.d2.iter_mut().zip(&self.keys[..self.len]) {
+            *d2 = f64::from_bits(key);
+        }
+        out
+    }
+}
+
 /// Hashes a cell code by one multiplication (the codes are distinct integers; SipHash's
 /// protection against chosen keys buys nothing here and costs a third of a query).
 #[derive(Default)]
@@ -284,22 +536,25 @@ impl Grid {
             .collect();
         needed.par_sort_unstable();
         needed.dedup();
-        let codes = &morton.codes;
+        // Each chunk of needed keys gallops along the codes from its first key's run.
+        let found: Vec<(u64, u32, u32)> = needed
+            .par_chunks(1024)
+            .flat_map_iter(|chunk| {
+                let mut pos = morton.lower_bound(chunk[0] << shift, 0);
+                chunk.iter().filter_map(move |&key| {
+                    let start = morton.lower_bound(key << shift, pos);
+                    pos = morton.lower_bound((key + 1) << shift, start);
+                    (pos > start).then_some((key, start as u32, pos as u32))
+                })
+            })
+            .collect();
         let mut runs =
-            HashMap::with_capacity_and_hasher(needed.len(), BuildHasherDefault::default());
-        let mut pos = 0;
-        for &key in &needed {
-            while pos < codes.len() && codes[pos] >> shift < key {
-                pos += 1;
-            }
-            let start = pos;
-            while pos < codes.len() && codes[pos] >> shift == key {
-                pos += 1;
-            }
-            if pos > start {
-                runs.insert(key, (start as u32, pos as u32));
-            }
-        }
+            HashMap::with_capacity_and_hasher(found.len(), BuildHasherDefault::default());
+        runs.extend(
+            found
+                .into_iter()
+                .map(|(key, start, end)| (key, (start, end))),
+        );
         Grid {
             level,
             size: morton.cell_size(level),
@@ -409,9 +664,8 @@ mod tests {
         }
     }
 
-    #[test]
-    fn grid_neighbours_are_exact_or_refused() {
-        // A dense plane, a sparse volume and duplicated points, in a box far from cubic.
+    /// A dense plane, a sparse volume and duplicated points, in a box far from cubic.
+    fn mixed_cloud() -> Vec<Vector3<f64>> {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         let mut pts: Vec<Vector3<f64>> = (0..6000)
             .map(|_| Vector3::new(rng.random_range(0.0..2.0), rng.random_range(0.0..0.3), 0.1))
@@ -424,6 +678,36 @@ mod tests {
             )
         }));
         pts.extend(pts[..200].to_vec());
+        pts
+    }
+
+    #[test]
+    fn octree_neighbours_are_exact() {
+        // Every point of the mixed cloud, and of a cloud smaller than k: the distances
+        // bit-exact against brute force, each returned position at its distance.
+        let mut clouds = vec![mixed_cloud()];
+        clouds.push(clouds[0][..11].to_vec());
+        for pts in clouds {
+            let morton = Morton::new(&pts);
+            let sorted = morton.gather(&pts);
+            let mut scratch = OctreeScratch::default();
+            for q in 0..sorted.len() {
+                let nb = morton.nearest(&sorted, q as u32, &mut scratch);
+                assert_eq!(&nb.d2[..nb.len], &brute(&sorted, q)[..], "query {q}");
+                for (&p, &d2) in nb.pos[..nb.len].iter().zip(&nb.d2) {
+                    assert_eq!(dist2(&sorted[p as usize], &sorted[q]), d2);
+                }
+                let mut distinct = nb.pos[..nb.len].to_vec();
+                distinct.sort_unstable();
+                distinct.dedup();
+                assert_eq!(distinct.len(), nb.len);
+            }
+        }
+    }
+
+    #[test]
+    fn grid_neighbours_are_exact_or_refused() {
+        let pts = mixed_cloud();
         let morton = Morton::new(&pts);
         let sorted = morton.gather(&pts);
         // The 90th percentile of the 16th-neighbour distances: a grid at least that coarse
