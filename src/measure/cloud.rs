@@ -86,10 +86,18 @@ pub enum CloudError {
 
 /// The mean of the finite points, accumulated relative to the first one (exact for clouds far
 /// from the origin).
-fn local_origin(points: &[Vector3<f64>]) -> Vector3<f64> {
-    let first = points[0];
-    let sum: Vector3<f64> = points.iter().map(|p| p - first).sum();
-    first + sum / points.len() as f64
+fn local_origin<'a>(points: impl Iterator<Item = &'a Vector3<f64>>) -> Vector3<f64> {
+    let (mut first, mut sum, mut n) = (None, Vector3::zeros(), 0usize);
+    for p in points {
+        sum += p - *first.get_or_insert(*p);
+        n += 1;
+    }
+    first.map_or(Vector3::zeros(), |f| f + sum / n as f64)
+}
+
+/// Whether every coordinate of `p` is finite.
+fn is_finite(p: &&Vector3<f64>) -> bool {
+    p.iter().all(|v| v.is_finite())
 }
 
 /// Least-squares plane of `points`: (unit normal, mean, smallest eigenvalue of the covariance,
@@ -206,19 +214,19 @@ impl Cloud {
     /// # Errors
     /// [`CloudError::TooFewPoints`] for fewer than [`NORMAL_NEIGHBOURS`] finite points.
     pub fn new(input: &[Vector3<f64>]) -> Result<Self, CloudError> {
-        let finite: Vec<Vector3<f64>> = input
-            .iter()
-            .filter(|p| p.iter().all(|v| v.is_finite()))
-            .copied()
-            .collect();
-        if finite.len() < NORMAL_NEIGHBOURS {
+        let found = input.par_iter().filter(is_finite).count();
+        if found < NORMAL_NEIGHBOURS {
             return Err(CloudError::TooFewPoints {
-                found: finite.len(),
+                found,
                 required: NORMAL_NEIGHBOURS,
             });
         }
-        let origin = local_origin(&finite);
-        let points: Vec<Vector3<f64>> = finite.par_iter().map(|p| p - origin).collect();
+        let origin = local_origin(input.iter().filter(is_finite));
+        let points: Vec<Vector3<f64>> = input
+            .par_iter()
+            .filter(is_finite)
+            .map(|p| p - origin)
+            .collect();
         let morton = Morton::new(&points);
         let sorted = morton.gather(&points);
         let boxes = sorted
@@ -231,7 +239,7 @@ impl Cloud {
         let n = points.len();
         let mut cloud = Cloud {
             origin,
-            local: (0..n).map(|_| OnceLock::new()).collect(),
+            local: (0..n).into_par_iter().map(|_| OnceLock::new()).collect(),
             points,
             surface_noise: 0.0,
             noise_cap: 0.0,

@@ -195,16 +195,13 @@ impl Morton {
         scratch.stack.clear();
         let mut roots = [Cell::default(); 27];
         let mut count = 0;
+        // The cells meeting the box; their runs are looked up when reached (nearest first:
+        // by then the k-th distance has usually shrunk below the far ones' distance).
         for cz in below[2]..=above[2] {
             for cy in below[1]..=above[1] {
                 for cx in below[0]..=above[0] {
-                    let c = [cx, cy, cz];
-                    let (start, end) =
-                        self.run(level, interleave(c), pos as usize, &mut scratch.runs);
-                    if end > start {
-                        roots[count] = self.cell(&q, level, c, start, end);
-                        count += 1;
-                    }
+                    roots[count] = self.cell(&q, level, [cx, cy, cz], UNRESOLVED, UNRESOLVED);
+                    count += 1;
                 }
             }
         }
@@ -215,7 +212,15 @@ impl Morton {
             if cell.gap2 > f64::from_bits(best.worst()) {
                 continue;
             }
-            let (start, end) = (cell.start as usize, cell.end as usize);
+            let (start, end) = if cell.start == UNRESOLVED {
+                let key = interleave(cell.coords);
+                self.run(cell.level, key, pos as usize, &mut scratch.runs)
+            } else {
+                (cell.start as usize, cell.end as usize)
+            };
+            if start == end {
+                continue;
+            }
             if end - start <= LEAF || cell.level == MORTON_BITS {
                 for (p, i) in points[start..end].iter().zip(start..) {
                     if !window.contains(&i) {
@@ -240,7 +245,7 @@ impl Morton {
                 if hi > lo {
                     let c: [u64; 3] =
                         std::array::from_fn(|a| 2 * cell.coords[a] + ((octant >> a) & 1));
-                    children[count] = self.cell(&q, level, c, lo, hi);
+                    children[count] = self.cell(&q, level, c, lo as u32, hi as u32);
                     count += 1;
                 }
                 lo = hi;
@@ -268,7 +273,7 @@ impl Morton {
     /// The cell at `level` with integer coordinates `c` and run `start..end`, with its
     /// squared distance from `q` (its box widened by a millionth of a cell for the rounding
     /// of the cell coordinates).
-    fn cell(&self, q: &[f64; 3], level: u32, c: [u64; 3], start: usize, end: usize) -> Cell {
+    fn cell(&self, q: &[f64; 3], level: u32, c: [u64; 3], start: u32, end: u32) -> Cell {
         let size = self.cell_size(level);
         let pad = 1e-6 * size;
         let gap2 = (0..3)
@@ -281,12 +286,15 @@ impl Morton {
         Cell {
             level,
             coords: c,
-            start: start as u32,
-            end: end as u32,
+            start,
+            end,
             gap2,
         }
     }
 }
+
+/// The run of a cell of [`Morton::nearest`] not looked up yet.
+const UNRESOLVED: u32 = u32::MAX;
 
 /// Largest run [`Morton::nearest`] scans without splitting it.
 const LEAF: usize = 32;
