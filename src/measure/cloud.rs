@@ -178,6 +178,72 @@ fn smallest_eigen(a: &Matrix3<f64>) -> Option<(Vector3<f64>, f64)> {
     Some((eig.eigenvectors.column(k).normalize(), *l))
 }
 
+/// The 9th smallest of 16 values (the median [`robust_normal`] takes, `m / 2` from 0): the
+/// 53 comparators of Batcher's odd–even merge sort of 16 that it depends on, unrolled and
+/// branch-free (a selection on a neighbourhood's distances mispredicts about half its
+/// comparisons).
+#[rustfmt::skip]
+fn median16(v: [u64; 16]) -> u64 {
+    let [mut v0, mut v1, mut v2, mut v3, mut v4, mut v5, mut v6, mut v7, mut v8, mut v9, mut v10,
+        mut v11, mut v12, mut v13, mut v14, mut v15] = v;
+    (v0, v1) = (v0.min(v1), v0.max(v1));
+    (v2, v3) = (v2.min(v3), v2.max(v3));
+    (v0, v2) = (v0.min(v2), v0.max(v2));
+    (v1, v3) = (v1.min(v3), v1.max(v3));
+    (v1, v2) = (v1.min(v2), v1.max(v2));
+    (v4, v5) = (v4.min(v5), v4.max(v5));
+    (v6, v7) = (v6.min(v7), v6.max(v7));
+    (v4, v6) = (v4.min(v6), v4.max(v6));
+    (v5, v7) = (v5.min(v7), v5.max(v7));
+    (v5, v6) = (v5.min(v6), v5.max(v6));
+    (v0, v4) = (v0.min(v4), v0.max(v4));
+    (v2, v6) = (v2.min(v6), v2.max(v6));
+    (v2, v4) = (v2.min(v4), v2.max(v4));
+    (v1, v5) = (v1.min(v5), v1.max(v5));
+    (v3, v7) = (v3.min(v7), v3.max(v7));
+    (v3, v5) = (v3.min(v5), v3.max(v5));
+    (v1, v2) = (v1.min(v2), v1.max(v2));
+    (v3, v4) = (v3.min(v4), v3.max(v4));
+    (v5, v6) = (v5.min(v6), v5.max(v6));
+    (v8, v9) = (v8.min(v9), v8.max(v9));
+    (v10, v11) = (v10.min(v11), v10.max(v11));
+    (v8, v10) = (v8.min(v10), v8.max(v10));
+    (v9, v11) = (v9.min(v11), v9.max(v11));
+    (v9, v10) = (v9.min(v10), v9.max(v10));
+    (v12, v13) = (v12.min(v13), v12.max(v13));
+    (v14, v15) = (v14.min(v15), v14.max(v15));
+    (v12, v14) = (v12.min(v14), v12.max(v14));
+    (v13, v15) = (v13.min(v15), v13.max(v15));
+    (v13, v14) = (v13.min(v14), v13.max(v14));
+    (v8, v12) = (v8.min(v12), v8.max(v12));
+    (v10, v14) = (v10.min(v14), v10.max(v14));
+    (v10, v12) = (v10.min(v12), v10.max(v12));
+    (v9, v13) = (v9.min(v13), v9.max(v13));
+    (v11, v15) = (v11.min(v15), v11.max(v15));
+    (v11, v13) = (v11.min(v13), v11.max(v13));
+    (v9, v10) = (v9.min(v10), v9.max(v10));
+    (v11, v12) = (v11.min(v12), v11.max(v12));
+    (v13, v14) = (v13.min(v14), v13.max(v14));
+    (v0, v8) = (v0.min(v8), v0.max(v8));
+    (v4, v12) = (v4.min(v12), v4.max(v12));
+    (v4, v8) = (v4.min(v8), v4.max(v8));
+    (v2, v10) = (v2.min(v10), v2.max(v10));
+    (v6, v14) = (v6.min(v14), v6.max(v14));
+    (v6, v10) = (v6.min(v10), v6.max(v10));
+    (v6, v8) = (v6.min(v8), v6.max(v8));
+    (v1, v9) = (v1.min(v9), v1.max(v9));
+    (v5, v13) = (v5.min(v13), v5.max(v13));
+    (v5, v9) = (v5.min(v9), v5.max(v9));
+    (v3, v11) = (v3.min(v11), v3.max(v11));
+    (v7, v15) = (v7.min(v15), v7.max(v15));
+    (v7, v11) = (v7.min(v11), v7.max(v11));
+    (v7, v9) = (v7.min(v9), v7.max(v9));
+    (v7, v8) = (v7.min(v8), v7.max(v8));
+    // The other wires' last values are not needed (they are not the 9th smallest).
+    let _ = (v0, v1, v2, v3, v4, v5, v6, v7, v9, v10, v11, v12, v13, v14, v15);
+    v8
+}
+
 /// The plane normal and RMS plane distance of a neighbourhood (at most [`NORMAL_NEIGHBOURS`]
 /// points), with one reweighting pass that drops neighbours farther than 2.5 robust σ from the
 /// first plane (robust PCA: an edge or a second surface in the neighbourhood does not tilt the
@@ -192,8 +258,12 @@ fn robust_normal(nb: &[Vector3<f64>]) -> Option<(Vector3<f64>, f64)> {
     }
     // The median distance: non-negative floats order like their bits.
     let mut bits = d.map(f64::to_bits);
-    let (_, median, _) = bits[..m].select_nth_unstable(m / 2);
-    let limit = (2.5 * 1.4826 * f64::from_bits(*median)).max(1e-12);
+    let median = if m == NORMAL_NEIGHBOURS {
+        median16(bits)
+    } else {
+        *bits[..m].select_nth_unstable(m / 2).1
+    };
+    let limit = (2.5 * 1.4826 * f64::from_bits(median)).max(1e-12);
     let mut keep = [true; NORMAL_NEIGHBOURS];
     for (k, v) in keep.iter_mut().zip(&d[..m]) {
         *k = *v <= limit;
@@ -526,6 +596,21 @@ mod tests {
                 (s - s_ref).abs() <= 1e-12 * s_ref.max(1e-9),
                 "point {k}: {s} vs {s_ref}"
             );
+        }
+    }
+
+    #[test]
+    fn median16_is_the_ninth_smallest() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for range in [3, 16, 1 << 40] {
+            // Few distinct values (ties at every rank) and distinct ones.
+            for _ in 0..2000 {
+                let v: [u64; 16] = std::array::from_fn(|_| rng.random_range(0..range));
+                let mut sorted = v;
+                sorted.sort_unstable();
+                assert_eq!(median16(v), sorted[8], "{v:?}");
+            }
         }
     }
 

@@ -27,7 +27,8 @@ fn spread21(v: u64) -> u64 {
 }
 
 /// Gathers every third bit of `v` (from bit 0) into the low 21 bits: the inverse of
-/// [`spread21`].
+/// [`spread21`] (the tests' check of the cell arithmetic).
+#[cfg(test)]
 fn compact21(v: u64) -> u64 {
     let mut x = v & 0x1249_2492_4924_9249;
     x = (x | (x >> 2)) & 0x10c3_0c30_c30c_30c3;
@@ -40,6 +41,26 @@ fn compact21(v: u64) -> u64 {
 /// The Z-order code of integer cell coordinates.
 fn interleave(c: [u64; 3]) -> u64 {
     spread21(c[0]) | (spread21(c[1]) << 1) | (spread21(c[2]) << 2)
+}
+
+/// The keys of the cells of the 3×3×3 block around the cell `key` at `level` that lie in the
+/// curve's box, by arithmetic on the interleaved bits: one axis's bits, the others set, plus
+/// one carries along that axis alone (and minus one borrows).
+fn block_keys(key: u64, level: u32) -> impl Iterator<Item = u64> {
+    let x = spread21((1 << level) - 1);
+    let [dx, dy, dz] = [x, x << 1, x << 2].map(|m| {
+        let v = key & m;
+        [
+            (v != 0).then(|| v.wrapping_sub(1) & m),
+            Some(v),
+            (v != m).then(|| (v | !m).wrapping_add(1) & m),
+        ]
+    });
+    dz.into_iter().flatten().flat_map(move |z| {
+        dy.into_iter()
+            .flatten()
+            .flat_map(move |y| dx.into_iter().flatten().map(move |x| x | y | z))
+    })
 }
 
 /// The points' order along a Z-order curve over cubic cells spanning their bounding box.
@@ -522,47 +543,37 @@ impl BlockScratch {
 }
 
 impl Grid {
-    /// The grid of `morton`'s cells at `level` around the cells `query_cells` (keys): the
-    /// runs of those cells and of their 26 neighbours, found in one merge of the needed keys
-    /// (sorted) with the sorted codes. Much cheaper than indexing every cell of the cloud
-    /// when the queries are a band around one pipe.
+    /// The grid of `morton`'s cells at `level` around the cells `query_cells` (keys, sorted):
+    /// the runs of those cells and of their 26 neighbours, found by galloping along the codes
+    /// in key order. Much cheaper than indexing every cell of the cloud when the queries are
+    /// a band around one pipe.
     pub fn covering(morton: &Morton, level: u32, query_cells: &[u64]) -> Self {
         let shift = 3 * (MORTON_BITS - level);
-        let cells = 1i64 << level;
-        let mut needed: Vec<u64> = query_cells
+        // The runs of the non-empty cells among `keys` (sorted): each chunk gallops along
+        // the codes from its first key's run.
+        let runs_of = |keys: &[u64]| -> Vec<(u64, (u32, u32))> {
+            keys.par_chunks(1024)
+                .flat_map_iter(|chunk| {
+                    let mut pos = morton.lower_bound(chunk[0] << shift, 0);
+                    chunk.iter().filter_map(move |&key| {
+                        let start = morton.lower_bound(key << shift, pos);
+                        pos = morton.lower_bound((key + 1) << shift, start);
+                        (pos > start).then_some((key, (start as u32, pos as u32)))
+                    })
+                })
+                .collect()
+        };
+        let mut runs: HashMap<u64, (u32, u32), BuildHasherDefault<CellHasher>> =
+            runs_of(query_cells).into_iter().collect();
+        // The block cells that are not query cells (around a band, nearly all empty): one
+        // sorted pass finds the few that hold points.
+        let mut others: Vec<u64> = query_cells
             .par_iter()
-            .flat_map_iter(|&key| {
-                let c = [key, key >> 1, key >> 2].map(|v| compact21(v) as i64);
-                (0..27).filter_map(move |n| {
-                    let d = [n % 3 - 1, n / 3 % 3 - 1, n / 9 - 1];
-                    let m: [i64; 3] = std::array::from_fn(|a| c[a] + d[a]);
-                    m.iter()
-                        .all(|&v| (0..cells).contains(&v))
-                        .then(|| interleave(m.map(|v| v as u64)))
-                })
-            })
+            .flat_map_iter(|&key| block_keys(key, level).filter(|k| !runs.contains_key(k)))
             .collect();
-        needed.par_sort_unstable();
-        needed.dedup();
-        // Each chunk of needed keys gallops along the codes from its first key's run.
-        let found: Vec<(u64, u32, u32)> = needed
-            .par_chunks(1024)
-            .flat_map_iter(|chunk| {
-                let mut pos = morton.lower_bound(chunk[0] << shift, 0);
-                chunk.iter().filter_map(move |&key| {
-                    let start = morton.lower_bound(key << shift, pos);
-                    pos = morton.lower_bound((key + 1) << shift, start);
-                    (pos > start).then_some((key, start as u32, pos as u32))
-                })
-            })
-            .collect();
-        let mut runs =
-            HashMap::with_capacity_and_hasher(found.len(), BuildHasherDefault::default());
-        runs.extend(
-            found
-                .into_iter()
-                .map(|(key, start, end)| (key, (start, end))),
-        );
+        others.par_sort_unstable();
+        others.dedup();
+        runs.extend(runs_of(&others));
         Grid {
             level,
             size: morton.cell_size(level),
@@ -662,6 +673,27 @@ mod tests {
         d.sort_by(f64::total_cmp);
         d.truncate(K);
         d
+    }
+
+    #[test]
+    fn block_keys_are_the_neighbouring_cells_in_the_box() {
+        // Against coordinates: every cell of a 4-level grid, corners and faces included.
+        let level = 2;
+        for key in 0..64u64 {
+            let c = [key, key >> 1, key >> 2].map(compact21);
+            let mut want: Vec<u64> = Vec::new();
+            for n in 0..27i64 {
+                let m: [i64; 3] =
+                    std::array::from_fn(|a| c[a] as i64 + [n % 3, n / 3 % 3, n / 9][a] - 1);
+                if m.iter().all(|v| (0..4).contains(v)) {
+                    want.push(interleave(m.map(|v| v as u64)));
+                }
+            }
+            let mut got: Vec<u64> = block_keys(key, level).collect();
+            want.sort_unstable();
+            got.sort_unstable();
+            assert_eq!(got, want, "cell {c:?}");
+        }
     }
 
     #[test]
