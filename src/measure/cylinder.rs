@@ -351,6 +351,8 @@ fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Ma
         let parts: Vec<(Matrix5<f64>, Vector5<f64>, f64)> = idx
             .par_chunks(4096)
             .map(|chunk| {
+                // JᵀJ's upper triangle (products commute exactly: mirrored, the same matrix).
+                let mut upper = [0.0; 15];
                 let mut acc = (Matrix5::zeros(), Vector5::zeros(), 0.0);
                 for &k in chunk {
                     let w = cloud.point_at(k) - cyl.point;
@@ -366,9 +368,23 @@ fn refine(cloud: &Cloud, idx: &[usize], start: Cylinder) -> Option<(Cylinder, Ma
                         -u.dot(&e2),
                         -1.0,
                     );
-                    acc.0 += j * j.transpose();
+                    let mut i = 0;
+                    for a in 0..5 {
+                        for b in a..5 {
+                            upper[i] += j[a] * j[b];
+                            i += 1;
+                        }
+                    }
                     acc.1 += j * r;
                     acc.2 += r * r;
+                }
+                let mut i = 0;
+                for a in 0..5 {
+                    for b in a..5 {
+                        acc.0[(a, b)] = upper[i];
+                        acc.0[(b, a)] = upper[i];
+                        i += 1;
+                    }
                 }
                 acc
             })
