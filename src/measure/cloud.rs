@@ -9,7 +9,7 @@
 //! order read memory in order. The k nearest neighbours of a large batch (the band around a
 //! candidate cylinder) come from the uniform grid sized to the batch's spacing, those of
 //! scattered points and of the grid's few refusals from the cells a bound on their reach
-//! picks ([`Morton::nearest`]); both are exact, and neither needs a tree.
+//! picks (`zorder::Morton::nearest`); both are exact, and neither needs a tree.
 
 use std::sync::OnceLock;
 
@@ -395,8 +395,8 @@ impl Cloud {
     /// (a band around a cylinder) is answered by the uniform grid whose cells match the
     /// batch's point spacing (measured on a pilot of 512 of its points): each cell's
     /// queries scan its 3×3×3 block, and the few whose neighbourhood may reach beyond the
-    /// block are answered alone ([`Morton::nearest`]). Both give the exact k nearest
-    /// neighbours.
+    /// block are answered alone (by the implicit octree of `measure::zorder`). Both give the
+    /// exact k nearest neighbours.
     pub fn prepare_at(&self, positions: &[usize]) {
         let mut missing: Vec<u32> = positions
             .par_iter()

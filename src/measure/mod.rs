@@ -1,8 +1,8 @@
-//! The measurement job (layer 4): the cloud around a local origin with its k-d tree and normals
-//! (`cloud`), its points in Z-order with the uniform grids that order gives (`zorder`: the exact
-//! nearest neighbours of a band of points), robust cylinder fitting (`cylinder`), the site's
-//! targets (`targets`), the scale from them against the TLS (`scale`), and the pipe measured in
-//! metres with its reference (`pipe`).
+//! The measurement job (layer 4): the cloud around a local origin with its normals (`cloud`),
+//! its points in Z-order with the implicit octree and uniform grids that order gives (`zorder`:
+//! the exact nearest neighbours of scattered points and of a band of points), robust cylinder
+//! fitting (`cylinder`), the site's targets (`targets`), the scale from them against the TLS
+//! (`scale`), and the pipe measured in metres with its reference (`pipe`).
 
 pub mod cloud;
 pub mod cylinder;
