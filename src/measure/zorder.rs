@@ -285,11 +285,17 @@ impl Morton {
         if slot.0 == tag {
             return (slot.1 as usize, slot.2 as usize);
         }
-        let shift = 3 * (MORTON_BITS - level);
-        let start = self.lower_bound(key << shift, hint);
-        let end = self.lower_bound((key + 1) << shift, start);
+        let (start, end) = self.cell_run(level, key, hint);
         *slot = (tag, start as u32, end as u32);
         (start, end)
+    }
+
+    /// The run `start..end` of the cell `key` at `level` (empty when the cell holds no
+    /// point), found by galloping from `hint`.
+    fn cell_run(&self, level: u32, key: u64, hint: usize) -> (usize, usize) {
+        let shift = 3 * (MORTON_BITS - level);
+        let start = self.lower_bound(key << shift, hint);
+        (start, self.lower_bound((key + 1) << shift, start))
     }
 
     /// The cell at `level` with integer coordinates `c` and run `start..end`, with its
@@ -517,28 +523,11 @@ impl BlockScratch {
         }
         // Insertion into the sorted best K (the candidates are few: those within `limit`);
         // the earlier of two at the same distance first, so the order is the block's.
-        let mut best = Nearest::new();
-        let mut keys = [u64::MAX; K];
-        let mut len = 0;
+        let mut best = TopK::new();
         for &(key, pos) in &self.ranked[..kept] {
-            if key >= keys[K - 1] {
-                continue;
-            }
-            let mut i = len.min(K - 1);
-            while i > 0 && key < keys[i - 1] {
-                keys[i] = keys[i - 1];
-                best.pos[i] = best.pos[i - 1];
-                i -= 1;
-            }
-            keys[i] = key;
-            best.pos[i] = pos;
-            len = (len + 1).min(K);
+            best.offer(key, pos);
         }
-        for (d2, &key) in best.d2.iter_mut().zip(&keys[..len]) {
-            *d2 = f64::from_bits(key);
-        }
-        best.len = len;
-        best
+        best.into_nearest()
     }
 }
 
@@ -548,17 +537,16 @@ impl Grid {
     /// in key order. Much cheaper than indexing every cell of the cloud when the queries are
     /// a band around one pipe.
     pub fn covering(morton: &Morton, level: u32, query_cells: &[u64]) -> Self {
-        let shift = 3 * (MORTON_BITS - level);
         // The runs of the non-empty cells among `keys` (sorted): each chunk gallops along
-        // the codes from its first key's run.
+        // the codes from the previous key's run.
         let runs_of = |keys: &[u64]| -> Vec<(u64, (u32, u32))> {
             keys.par_chunks(1024)
                 .flat_map_iter(|chunk| {
-                    let mut pos = morton.lower_bound(chunk[0] << shift, 0);
+                    let mut pos = 0;
                     chunk.iter().filter_map(move |&key| {
-                        let start = morton.lower_bound(key << shift, pos);
-                        pos = morton.lower_bound((key + 1) << shift, start);
-                        (pos > start).then_some((key, (start as u32, pos as u32)))
+                        let (start, end) = morton.cell_run(level, key, pos);
+                        pos = end;
+                        (end > start).then_some((key, (start as u32, end as u32)))
                     })
                 })
                 .collect()
