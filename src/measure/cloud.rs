@@ -11,7 +11,7 @@
 //! scattered points and of the grid's few refusals from the cells a bound on their reach
 //! picks (`zorder::Morton::nearest`); both are exact, and neither needs a tree.
 
-use std::sync::OnceLock;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
@@ -23,8 +23,6 @@ use crate::geometry::bounds;
 pub struct Cloud {
     /// The local origin in the input frame (the points' mean).
     pub origin: Vector3<f64>,
-    /// Points relative to `origin`.
-    pub points: Vec<Vector3<f64>>,
     /// Robust scale (m) of the points about their local planes: 1.4826 × the median of the
     /// neighbourhoods' RMS plane distances (over an evenly strided subsample of at most
     /// [`NOISE_SAMPLE`] points). Noise plus curvature at the scale of k neighbours.
@@ -33,22 +31,64 @@ pub struct Cloud {
     /// subsample's. A point in a sparser neighbourhood gets no wider threshold.
     pub noise_cap: f64,
     morton: Morton,
-    /// The points in curve order (the grids' runs index it).
+    /// The points (relative to `origin`) in curve order (the grids' runs index it); point
+    /// `k` of the input's finite points is at [`Cloud::position`]`(k)`.
     sorted: Vec<[f64; 3]>,
     /// Per run of [`BOX_RUN`] curve positions: the centre and half diagonal of its bounding
     /// box (along the curve, a run is a compact patch: a pass can skip a run whose box is
     /// far from what it looks for).
     boxes: Vec<(Vector3<f64>, f64)>,
-    /// Per curve position: unit normal (sign arbitrary) and the RMS distance of the point's
-    /// neighbours from their robust plane (m), once computed.
-    local: Vec<OnceLock<(Vector3<f64>, f64)>>,
+    /// Per curve position, the local geometry once computed ([`LocalSlots`]).
+    local: LocalSlots,
+}
+
+/// Per curve position: the unit normal (sign arbitrary) and the RMS distance of the point's
+/// neighbours from their robust plane (m), once computed. Four words per point (a
+/// `OnceLock` would add a fifth): the normal's coordinates, then the noise's bits
+/// complemented, which marks the slot as filled (a noise is never NaN, so its complement is
+/// never 0). Zeroed in parallel when the cloud is made: a zeroed allocation would defer the
+/// pages' first touch to the fit, where a page read before it is written faults twice.
+struct LocalSlots(Vec<[AtomicU64; 4]>);
+
+impl LocalSlots {
+    fn new(n: usize) -> Self {
+        LocalSlots((0..n).into_par_iter().map(|_| Default::default()).collect())
+    }
+
+    fn get(&self, pos: usize) -> Option<(Vector3<f64>, f64)> {
+        let slot = &self.0[pos];
+        // Acquire: the normal stored before the mark is visible.
+        let mark = slot[3].load(Ordering::Acquire);
+        (mark != 0).then(|| {
+            let c = |a: usize| f64::from_bits(slot[a].load(Ordering::Relaxed));
+            (Vector3::new(c(0), c(1), c(2)), f64::from_bits(!mark))
+        })
+    }
+
+    /// Stores the geometry of `pos` unless it is there already (the first stays, as a
+    /// point's geometry from the grid and from the octree may differ in the last bits: the
+    /// neighbours are the same, their order may not be).
+    fn set(&self, pos: usize, (normal, noise): (Vector3<f64>, f64)) {
+        let slot = &self.0[pos];
+        if slot[3].load(Ordering::Relaxed) != 0 {
+            return;
+        }
+        for (word, v) in slot.iter().zip(normal.iter()) {
+            word.store(v.to_bits(), Ordering::Relaxed);
+        }
+        slot[3].store(!noise.to_bits(), Ordering::Release);
+    }
+
+    fn is_set(&self, pos: usize) -> bool {
+        self.0[pos][3].load(Ordering::Acquire) != 0
+    }
 }
 
 impl std::fmt::Debug for Cloud {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Cloud")
             .field("origin", &self.origin)
-            .field("points", &self.points.len())
+            .field("points", &self.len())
             .field("surface_noise", &self.surface_noise)
             .field("noise_cap", &self.noise_cap)
             .finish_non_exhaustive()
@@ -98,6 +138,19 @@ fn local_origin<'a>(points: impl Iterator<Item = &'a Vector3<f64>>) -> Vector3<f
 /// Whether every coordinate of `p` is finite.
 fn is_finite(p: &&Vector3<f64>) -> bool {
     p.iter().all(|v| v.is_finite())
+}
+
+/// The indices of the finite points of `input` (`found` of them), in input order, or `None`
+/// when every point is finite (the usual case).
+fn finite_indices(input: &[Vector3<f64>], found: usize) -> Option<Vec<u32>> {
+    (found < input.len()).then(|| {
+        input
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| is_finite(p))
+            .map(|(i, _)| i as u32)
+            .collect()
+    })
 }
 
 /// Least-squares plane of `points`: (unit normal, mean, smallest eigenvalue of the covariance,
@@ -292,13 +345,15 @@ impl Cloud {
             });
         }
         let origin = local_origin(input.iter().filter(is_finite));
-        let points: Vec<Vector3<f64>> = input
-            .par_iter()
-            .filter(is_finite)
-            .map(|p| p - origin)
-            .collect();
-        let morton = Morton::new(&points);
-        let sorted = morton.gather(&points);
+        // Finite point `k` relative to the origin: the curve's order and the sorted copy are
+        // made from the input directly (no copy in input order).
+        let finite = finite_indices(input, found);
+        let point = |k: usize| {
+            let i = finite.as_ref().map_or(k, |f| f[k] as usize);
+            input[i] - origin
+        };
+        let morton = Morton::new(found, &point);
+        let sorted = morton.gather(&point);
         let boxes = sorted
             .par_chunks(BOX_RUN)
             .map(|run| {
@@ -306,11 +361,10 @@ impl Cloud {
                 ((lo + hi) / 2.0, (hi - lo).norm() / 2.0)
             })
             .collect();
-        let n = points.len();
+        let n = found;
         let mut cloud = Cloud {
             origin,
-            local: (0..n).into_par_iter().map(|_| OnceLock::new()).collect(),
-            points,
+            local: LocalSlots::new(n),
             surface_noise: 0.0,
             noise_cap: 0.0,
             morton,
@@ -341,19 +395,28 @@ impl Cloud {
     /// Points whose local geometry has been computed.
     #[must_use]
     pub fn computed(&self) -> usize {
-        self.local.iter().filter(|l| l.get().is_some()).count()
+        (0..self.len())
+            .filter(|&pos| self.local.is_set(pos))
+            .count()
     }
 
     /// Number of points.
     #[must_use]
     pub fn len(&self) -> usize {
-        self.points.len()
+        self.sorted.len()
     }
 
     /// Whether the cloud has no points (never, once built).
     #[must_use]
     pub fn is_empty(&self) -> bool {
-        self.points.is_empty()
+        self.sorted.is_empty()
+    }
+
+    /// Finite point `k` (in the input's order, non-finite points skipped), relative to the
+    /// local origin.
+    #[must_use]
+    pub fn point(&self, k: usize) -> Vector3<f64> {
+        self.point_at(self.position(k))
     }
 
     /// The curve position of point `k` (the index of the cloud's methods named `_at`: in
@@ -401,7 +464,7 @@ impl Cloud {
         let mut missing: Vec<u32> = positions
             .par_iter()
             .with_min_len(4096)
-            .filter(|&&pos| self.local[pos].get().is_none())
+            .filter(|&&pos| !self.local.is_set(pos))
             .map(|&pos| pos as u32)
             .collect();
         if !missing.is_sorted() {
@@ -420,7 +483,7 @@ impl Cloud {
             .par_iter()
             .map_init(OctreeScratch::default, |scratch, &pos| {
                 let (local, d2) = self.compute_local(pos, scratch);
-                let _ = self.local[pos as usize].set(local);
+                self.local.set(pos as usize, local);
                 d2.sqrt()
             })
             .collect();
@@ -455,8 +518,7 @@ impl Cloud {
             || (BlockScratch::default(), OctreeScratch::default()),
             |(block, scratch), group| {
                 grid.nearest_in_cell(&self.morton, &self.sorted, group, block, |pos, nb| {
-                    let slot = &self.local[pos as usize];
-                    if slot.get().is_some() {
+                    if self.local.is_set(pos as usize) {
                         return;
                     }
                     let local = match nb {
@@ -469,7 +531,7 @@ impl Cloud {
                         }
                         None => self.compute_local(pos, scratch).0,
                     };
-                    let _ = slot.set(local);
+                    self.local.set(pos as usize, local);
                 });
             },
         );
@@ -480,7 +542,8 @@ impl Cloud {
         missing
             .par_iter()
             .for_each_init(OctreeScratch::default, |scratch, &pos| {
-                let _ = self.local[pos as usize].set(self.compute_local(pos, scratch).0);
+                self.local
+                    .set(pos as usize, self.compute_local(pos, scratch).0);
             });
     }
 
@@ -493,10 +556,15 @@ impl Cloud {
     /// [`Cloud::local`] of the point at curve position `pos`.
     #[must_use]
     pub fn local_at(&self, pos: usize) -> (Vector3<f64>, f64) {
-        *self.local[pos].get_or_init(|| {
-            self.compute_local(pos as u32, &mut OctreeScratch::default())
-                .0
-        })
+        if let Some(local) = self.local.get(pos) {
+            return local;
+        }
+        let local = self
+            .compute_local(pos as u32, &mut OctreeScratch::default())
+            .0;
+        self.local.set(pos, local);
+        // Another thread's may have been stored first.
+        self.local.get(pos).unwrap_or(local)
     }
 
     /// The local geometry of the point at curve position `pos` from its [`NORMAL_NEIGHBOURS`]
@@ -577,14 +645,14 @@ mod tests {
             .filter(|&k| cloud.position(k) % 2 == 1)
             .step_by(37)
         {
-            let p = cloud.points[k];
+            let p = cloud.point(k);
             let mut by_distance: Vec<(f64, usize)> = (0..cloud.len())
-                .map(|j| ((cloud.points[j] - p).norm_squared(), j))
+                .map(|j| ((cloud.point(j) - p).norm_squared(), j))
                 .collect();
             by_distance.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             let nb: Vec<Vector3<f64>> = by_distance[..NORMAL_NEIGHBOURS]
                 .iter()
-                .map(|&(_, j)| cloud.points[j])
+                .map(|&(_, j)| cloud.point(j))
                 .collect();
             let (n_ref, s_ref) = local_geometry(&nb);
             let (n, s) = cloud.local(k);
@@ -627,6 +695,40 @@ mod tests {
             .unwrap();
         assert!((l - l_ref).abs() < 1e-12, "{l} vs {l_ref}");
         assert!(v.dot(&eig.eigenvectors.column(k)).abs() > 1.0 - 1e-12);
+    }
+
+    #[test]
+    fn non_finite_points_are_skipped_and_the_rest_keep_their_order() {
+        // A curved patch with NaN and infinite points among its points: the cloud must be
+        // that of the finite points alone, point k the k-th finite point.
+        let finite: Vec<Vector3<f64>> = (0..900)
+            .map(|i| {
+                let (x, y) = (f64::from(i % 30) * 0.01, f64::from(i / 30) * 0.01);
+                Vector3::new(x, y, 0.3 * x * x - 0.2 * y * y + 7.0)
+            })
+            .collect();
+        let mut with_gaps = Vec::new();
+        for (i, p) in finite.iter().enumerate() {
+            if i % 7 == 3 {
+                with_gaps.push(Vector3::new(f64::NAN, 1.0, 2.0));
+            }
+            if i % 11 == 5 {
+                with_gaps.push(Vector3::new(0.0, f64::INFINITY, 2.0));
+            }
+            with_gaps.push(*p);
+        }
+        let (a, b) = (
+            Cloud::new(&finite).unwrap(),
+            Cloud::new(&with_gaps).unwrap(),
+        );
+        assert_eq!(b.len(), finite.len());
+        assert_eq!(a.origin, b.origin);
+        for k in 0..finite.len() {
+            assert_eq!(b.point(k) + b.origin, a.point(k) + a.origin);
+            assert!((b.point(k) + b.origin - finite[k]).norm() < 1e-12);
+            assert_eq!(a.local(k), b.local(k));
+        }
+        assert_eq!(a.surface_noise, b.surface_noise);
     }
 
     #[test]

@@ -654,7 +654,7 @@ pub fn fit_all_cylinders(
     config: &CylinderConfig,
     max_count: usize,
 ) -> Vec<CylinderFit> {
-    let mut remaining: Vec<usize> = (0..cloud.points.len()).collect();
+    let mut remaining: Vec<usize> = (0..cloud.len()).collect();
     let mut out = Vec::new();
     while out.len() < max_count {
         let Ok(fit) = fit_cylinder_among(cloud, &remaining, config) else {

@@ -153,7 +153,7 @@ pub fn fit_points(
     config: &CylinderConfig,
 ) -> Result<CylinderFit, CylinderError> {
     let cloud = Cloud::new(points)?;
-    let all: Vec<usize> = (0..cloud.points.len()).collect();
+    let all: Vec<usize> = (0..cloud.len()).collect();
     fit_cylinder_among(&cloud, &all, config)
 }
 

@@ -78,9 +78,9 @@ pub(crate) struct Morton {
 }
 
 impl Morton {
-    /// Orders `points` (finite, at least one) along the curve.
-    pub fn new(points: &[Vector3<f64>]) -> Self {
-        let (lo, hi) = bounds(points.iter().copied());
+    /// Orders the `n` points `point(0..n)` (finite, at least one) along the curve.
+    pub fn new(n: usize, point: &(impl Fn(usize) -> Vector3<f64> + Sync)) -> Self {
+        let (lo, hi) = bounds((0..n).map(point));
         let extent = (hi - lo).max();
         let scale = if extent > 0.0 {
             f64::from((1u32 << MORTON_BITS) - 1) / extent
@@ -94,25 +94,36 @@ impl Morton {
             rank: Vec::new(),
             codes: Vec::new(),
         };
-        let mut keyed: Vec<(u64, u32)> = points
-            .par_iter()
-            .enumerate()
-            .map(|(i, p)| (interleave(m.finest(p)), i as u32))
+        let mut keyed: Vec<(u64, u32)> = (0..n)
+            .into_par_iter()
+            .map(|i| (interleave(m.finest(&point(i))), i as u32))
             .collect();
         keyed.par_sort_unstable();
-        m.rank = vec![0; points.len()];
-        for (pos, &(_, i)) in keyed.iter().enumerate() {
-            m.rank[i as usize] = pos as u32;
-        }
-        (m.codes, m.order) = keyed.into_iter().unzip();
+        // The inverse permutation (scattered writes, serial) beside the two columns.
+        let (rank, (codes, order)) = rayon::join(
+            || {
+                let mut rank = vec![0; n];
+                for (pos, &(_, i)) in keyed.iter().enumerate() {
+                    rank[i as usize] = pos as u32;
+                }
+                rank
+            },
+            || {
+                rayon::join(
+                    || keyed.par_iter().map(|k| k.0).collect(),
+                    || keyed.par_iter().map(|k| k.1).collect(),
+                )
+            },
+        );
+        (m.rank, m.codes, m.order) = (rank, codes, order);
         m
     }
 
-    /// `points` (indexed as given to [`Morton::new`]) in curve order.
-    pub fn gather(&self, points: &[Vector3<f64>]) -> Vec<[f64; 3]> {
+    /// The points `point(i)` (`i` as given to [`Morton::new`]) in curve order.
+    pub fn gather(&self, point: &(impl Fn(usize) -> Vector3<f64> + Sync)) -> Vec<[f64; 3]> {
         self.order
             .par_iter()
-            .map(|&i| points[i as usize].into())
+            .map(|&i| point(i as usize).into())
             .collect()
     }
 
@@ -716,8 +727,8 @@ mod tests {
         let mut clouds = vec![mixed_cloud()];
         clouds.push(clouds[0][..11].to_vec());
         for pts in clouds {
-            let morton = Morton::new(&pts);
-            let sorted = morton.gather(&pts);
+            let morton = Morton::new(pts.len(), &|i| pts[i]);
+            let sorted = morton.gather(&|i| pts[i]);
             let mut scratch = OctreeScratch::default();
             for q in 0..sorted.len() {
                 let nb = morton.nearest(&sorted, q as u32, &mut scratch);
@@ -736,8 +747,8 @@ mod tests {
     #[test]
     fn grid_neighbours_are_exact_or_refused() {
         let pts = mixed_cloud();
-        let morton = Morton::new(&pts);
-        let sorted = morton.gather(&pts);
+        let morton = Morton::new(pts.len(), &|i| pts[i]);
+        let sorted = morton.gather(&|i| pts[i]);
         // The 90th percentile of the 16th-neighbour distances: a grid at least that coarse
         // answers at least nine queries in ten (every block reaches one cell beyond its
         // query), finer grids refuse more; every answer is exact.
