@@ -254,19 +254,37 @@ fn near(cloud: &Cloud, runs: &[&[usize]], cyl: &Cylinder, floor: f64) -> Vec<usi
     let t = max_threshold(cloud, floor);
     // A box whose points' axis distances (the centre's ± the half diagonal) all miss
     // `radius ± t` is skipped whole.
-    runs.par_iter()
-        .with_min_len(16)
-        .flat_map_iter(|run| {
-            let (centre, half) = cloud.run_box(run[0] / BOX_RUN);
-            let rho = (centre - cyl.point).cross(&cyl.direction).norm();
-            let slack = half + 1e-9 * (1.0 + rho);
-            let miss = rho - slack > cyl.radius + t || rho + slack < cyl.radius - t;
-            let run: &[usize] = if miss { &[] } else { run };
-            run.iter()
-                .copied()
-                .filter(move |&k| cyl.residual(&cloud.point_at(k)).abs() <= t)
+    let parts: Vec<Vec<usize>> = runs
+        .par_chunks(16)
+        .map(|chunk| {
+            let mut part = Vec::new();
+            for run in chunk {
+                let (centre, half) = cloud.run_box(run[0] / BOX_RUN);
+                let rho = (centre - cyl.point).cross(&cyl.direction).norm();
+                let slack = half + 1e-9 * (1.0 + rho);
+                if rho - slack > cyl.radius + t || rho + slack < cyl.radius - t {
+                    continue;
+                }
+                part.extend(
+                    run.iter()
+                        .copied()
+                        .filter(|&k| cyl.residual(&cloud.point_at(k)).abs() <= t),
+                );
+            }
+            part
         })
-        .collect()
+        .collect();
+    concat(&parts)
+}
+
+/// The parts one after the other. A filtered parallel collect grows its pieces element by
+/// element and links them; parts collected per chunk and copied once cost a third as much.
+fn concat<T: Copy>(parts: &[Vec<T>]) -> Vec<T> {
+    let mut all = Vec::with_capacity(parts.iter().map(Vec::len).sum());
+    for part in parts {
+        all.extend_from_slice(part);
+    }
+    all
 }
 
 /// Nearest sample neighbours the local half of the pairs draws its second point from.
@@ -599,10 +617,11 @@ fn fit_among(
     for _ in 0..10 {
         let band = near(cloud, &runs, &cyl, threshold);
         cloud.prepare_at(&band);
-        let next: Vec<usize> = band
+        let parts: Vec<Vec<usize>> = band
             .par_chunks(4096)
-            .flat_map_iter(|chunk| select(&cyl, chunk))
+            .map(|chunk| select(&cyl, chunk))
             .collect();
+        let next = concat(&parts);
         if next.len() < config.min_inliers.max(6) {
             return Err(not_found(next.len()));
         }
