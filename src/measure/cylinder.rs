@@ -223,23 +223,47 @@ fn supports(
     floor: f64,
     cos_max: f64,
 ) -> Option<(f64, f64)> {
+    support_of(
+        cloud,
+        &cloud.point_at(k),
+        || cloud.local_at(k),
+        cyl,
+        floor,
+        cos_max,
+    )
+}
+
+/// [`supports`] for the point `p` whose local geometry `local` gives.
+fn support_of(
+    cloud: &Cloud,
+    p: &Vector3<f64>,
+    local: impl FnOnce() -> (Vector3<f64>, f64),
+    cyl: &Cylinder,
+    floor: f64,
+    cos_max: f64,
+) -> Option<(f64, f64)> {
     // The radial vector once: its length gives the residual, and the normal test compares
     // |n·v| with cos_max·|v| (no second square root, no division).
-    let v = cyl.offset(&cloud.point_at(k));
+    let v = cyl.offset(p);
     let rho = v.norm();
     let e = rho - cyl.radius;
     if e.abs() > max_threshold(cloud, floor) {
         return None;
     }
-    let (normal, noise) = cloud.local_at(k);
+    let (normal, noise) = local();
     let t = point_threshold(noise, cloud, floor);
     (e.abs() <= t && normal.dot(&v).abs() >= cos_max * rho).then_some((e, t))
 }
 
-/// MSAC cost of the point at curve position `k` for `cyl`: (e/t)² for a supporter, 1
-/// otherwise.
+/// MSAC cost of a supporter's residual `e` and threshold `t` ((e/t)²), 1 for a point that
+/// does not support.
+fn msac_term(support: Option<(f64, f64)>) -> f64 {
+    support.map_or(1.0, |(e, t)| (e / t).powi(2))
+}
+
+/// MSAC cost of the point at curve position `k` for `cyl` ([`msac_term`]).
 fn msac_cost(cloud: &Cloud, k: usize, cyl: &Cylinder, floor: f64, cos_max: f64) -> f64 {
-    supports(cloud, k, cyl, floor, cos_max).map_or(1.0, |(e, t)| (e / t).powi(2))
+    msac_term(supports(cloud, k, cyl, floor, cos_max))
 }
 
 /// A pool of curve positions (sorted) cut into its runs within one box of
@@ -514,6 +538,14 @@ fn fit_among(
         .collect();
     // The floor of every point's threshold: 3 × the cloud's typical local noise.
     let threshold = (3.0 * cloud.surface_noise).max(1e-6);
+    // The subsample's points and local geometry side by side: every hypothesis reads them.
+    let oriented: Vec<(Vector3<f64>, Vector3<f64>, f64)> = sample
+        .iter()
+        .map(|&k| {
+            let (normal, noise) = cloud.local_at(k);
+            (cloud.point_at(k), normal, noise)
+        })
+        .collect();
     // Step 2: MSAC over the subsample, hypotheses in parallel, ties broken by index.
     let mut scored: Vec<(f64, usize, Cylinder)> = pairs
         .par_iter()
@@ -527,9 +559,12 @@ fn fit_among(
                 config,
             )?;
             // MSAC with each point's own threshold (3 × its local noise), normalised.
-            let cost: f64 = sample
+            let cost: f64 = oriented
                 .iter()
-                .map(|&k| msac_cost(cloud, k, &cyl, threshold, cos_max))
+                .map(|(p, normal, noise)| {
+                    let local = || (*normal, *noise);
+                    msac_term(support_of(cloud, p, local, &cyl, threshold, cos_max))
+                })
                 .sum();
             Some((cost, h, cyl))
         })
