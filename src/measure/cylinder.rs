@@ -608,12 +608,23 @@ fn fit_among(
     };
     let runs = box_runs(pool);
     let in_range = |c: &Cylinder| c.radius >= config.radius_min && c.radius <= config.radius_max;
-    let refined: Vec<Cylinder> = scored
-        .iter()
-        .take(TOP_HYPOTHESES)
-        .filter(|(_, _, c)| normal_coverage(cloud, &sample, c, threshold, cos_max) >= MIN_COVERAGE)
-        .take(REFINED_HYPOTHESES)
-        .filter_map(|(_, _, c)| {
+    // The first REFINED_HYPOTHESES of the best TOP_HYPOTHESES that pass, checked in parallel
+    // batches (the same ones as one by one).
+    let mut covering: Vec<Cylinder> = Vec::with_capacity(REFINED_HYPOTHESES);
+    for batch in scored[..scored.len().min(TOP_HYPOTHESES)].chunks(2 * REFINED_HYPOTHESES) {
+        let pass: Vec<bool> = batch
+            .par_iter()
+            .map(|(_, _, c)| normal_coverage(cloud, &sample, c, threshold, cos_max) >= MIN_COVERAGE)
+            .collect();
+        covering.extend(batch.iter().zip(pass).filter(|(_, p)| *p).map(|(h, _)| h.2));
+        if covering.len() >= REFINED_HYPOTHESES {
+            break;
+        }
+    }
+    covering.truncate(REFINED_HYPOTHESES);
+    let refined: Vec<Cylinder> = covering
+        .par_iter()
+        .filter_map(|c| {
             let support = select(c, &sample);
             if support.len() < 6 {
                 return None;
