@@ -439,6 +439,9 @@ impl Hasher for CellHasher {
     }
 }
 
+/// Entries of [`Grid::covering`]'s table of cells seen (the top 12 bits of a hash).
+const SEEN: usize = 1 << 12;
+
 /// The cells of one level of the curve's octree: each non-empty cell's run of positions.
 pub(crate) struct Grid {
     level: u32,
@@ -566,10 +569,30 @@ impl Grid {
             runs_of(query_cells).into_iter().collect();
         // The block cells that are not query cells (around a band, nearly all empty): one
         // sorted pass finds the few that hold points.
-        let mut others: Vec<u64> = query_cells
-            .par_iter()
-            .flat_map_iter(|&key| block_keys(key, level).filter(|k| !runs.contains_key(k)))
+        // Neighbouring query cells (along the curve) share most of their block cells: a
+        // small direct-mapped table of the chunk's cells seen skips most repeats before the
+        // map is probed, and each chunk's are deduplicated before they are gathered and
+        // sorted.
+        let parts: Vec<Vec<u64>> = query_cells
+            .par_chunks(1024)
+            .map(|chunk| {
+                let mut seen = vec![u64::MAX; SEEN];
+                let mut part: Vec<u64> = Vec::new();
+                for k in chunk.iter().flat_map(|&key| block_keys(key, level)) {
+                    let slot = &mut seen[(k.wrapping_mul(0x9e37_79b9_7f4a_7c15) >> 52) as usize];
+                    if *slot != k {
+                        *slot = k;
+                        if !runs.contains_key(&k) {
+                            part.push(k);
+                        }
+                    }
+                }
+                part.sort_unstable();
+                part.dedup();
+                part
+            })
             .collect();
+        let mut others = parts.concat();
         others.par_sort_unstable();
         others.dedup();
         runs.extend(runs_of(&others));
