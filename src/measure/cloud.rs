@@ -461,12 +461,15 @@ impl Cloud {
     /// block are answered alone (by the implicit octree of `measure::zorder`). Both give the
     /// exact k nearest neighbours.
     pub fn prepare_at(&self, positions: &[usize]) {
-        let mut missing: Vec<u32> = positions
-            .par_iter()
-            .with_min_len(4096)
-            .filter(|&&pos| !self.local.is_set(pos))
-            .map(|&pos| pos as u32)
+        // Gathered per chunk (a filtered parallel collect grows its pieces element by element).
+        let parts: Vec<Vec<u32>> = positions
+            .par_chunks(4096)
+            .map(|chunk| {
+                let missing = chunk.iter().filter(|&&pos| !self.local.is_set(pos));
+                missing.map(|&pos| pos as u32).collect()
+            })
             .collect();
+        let mut missing = parts.concat();
         if !missing.is_sorted() {
             missing.par_sort_unstable();
         }
@@ -502,7 +505,11 @@ impl Cloud {
         let mut rest = &missing[..];
         while let Some(&first) = rest.first() {
             let key = self.morton.key(level, first);
-            let len = rest.partition_point(|&p| self.morton.key(level, p) == key);
+            // Groups are short (eight queries on average): scanned, not searched.
+            let len = rest
+                .iter()
+                .position(|&p| self.morton.key(level, p) != key)
+                .unwrap_or(rest.len());
             let (group, tail) = rest.split_at(len);
             groups.push(group);
             keys.push(key);
