@@ -730,9 +730,9 @@ mod tests {
         );
         assert_eq!(b.len(), finite.len());
         assert_eq!(a.origin, b.origin);
-        for k in 0..finite.len() {
+        for (k, p) in finite.iter().enumerate() {
             assert_eq!(b.point(k) + b.origin, a.point(k) + a.origin);
-            assert!((b.point(k) + b.origin - finite[k]).norm() < 1e-12);
+            assert!((b.point(k) + b.origin - p).norm() < 1e-12);
             assert_eq!(a.local(k), b.local(k));
         }
         assert_eq!(a.surface_noise, b.surface_noise);
