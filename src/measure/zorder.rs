@@ -567,8 +567,7 @@ impl Grid {
         };
         let mut runs: HashMap<u64, (u32, u32), BuildHasherDefault<CellHasher>> =
             runs_of(query_cells).into_iter().collect();
-        // The block cells that are not query cells (around a band, nearly all empty): one
-        // sorted pass finds the few that hold points.
+        // The block cells that are not query cells (around a band, nearly all empty).
         // Neighbouring query cells (along the curve) share most of their block cells: a
         // small direct-mapped table of the chunk's cells seen skips most repeats before the
         // map is probed, and each chunk's are deduplicated before they are gathered and
@@ -595,6 +594,7 @@ impl Grid {
         let mut others = parts.concat();
         others.par_sort_unstable();
         others.dedup();
+        // One sorted pass finds the few that hold points.
         runs.extend(runs_of(&others));
         Grid {
             level,
