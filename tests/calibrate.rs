@@ -141,3 +141,41 @@ fn a_network_without_roll_diversity_gets_a_loud_warning() {
         cal.warnings
     );
 }
+
+/// Frames that see no target — real video has them: the camera turned away, motion blur — are
+/// left out of the target adjustment instead of making its normal equations singular, and the
+/// calibration of the rest still recovers the camera.
+#[test]
+fn frames_without_targets_are_left_out_of_the_adjustment() {
+    use pipemeasure::calibrate::pipeline::{CalibrateConfig, CalibrationInput, calibrate};
+    use pipemeasure::experiments::calibration::prepare;
+    use pipemeasure::experiments::matching::Scenario;
+
+    let mut scenario = Scenario::default();
+    scenario.options.width = 1920;
+    scenario.options.height = 1080;
+    scenario.lab.frames = 30;
+    let s = prepare(&scenario).unwrap();
+    let mut detections = s.detections.clone();
+    for k in [3, 11, 20] {
+        detections[k].clear();
+    }
+    // One more frame keeps only two targets: too few to fix its pose.
+    detections[7].truncate(2);
+    let input = CalibrationInput {
+        model: &s.model,
+        detections: &detections,
+        image_size: (1920, 1080),
+    };
+    let cal = calibrate(&input, &CalibrateConfig::default(), &|m| eprintln!("{m}")).unwrap();
+    for k in [3, 7, 11, 20] {
+        assert!(!cal.adjusted_frames.contains(&k), "frame {k} adjusted");
+        assert!(cal.observations.iter().all(|o| o.frame != k));
+    }
+    assert_eq!(cal.adjusted_frames.len(), detections.len() - 4);
+    let truth = s.truth.camera.intrinsics;
+    for t in [Term::C, Term::U0, Term::V0] {
+        let (e, x, sd) = (cal.intrinsics.get(t), truth.get(t), cal.std_dev[t.index()]);
+        assert!((e - x).abs() < 3.0 * sd + 0.05, "{t}: {e} vs {x} ± {sd}");
+    }
+}

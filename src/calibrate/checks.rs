@@ -163,6 +163,83 @@ pub fn projection_difference(a: &Intrinsics, b: &Intrinsics, size: (u32, u32)) -
     map_from(cols, rows, flat)
 }
 
+/// [`projection_difference`] after the rotation that best aligns the two models' rays.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RotatedDifference {
+    /// The differences (px) after the rotation.
+    pub map: ImageMap,
+    /// The rotation's angle (degrees).
+    pub rotation_deg: f64,
+}
+
+/// Difference (px) between the projections of two models of the same camera after
+/// compensating a rotation between them (mrcal's `show-projection-diff`): a model estimated
+/// from another set of frames can have its whole bundle of rays turned a little — the poses
+/// turn with it, so no image tells — and the principal point and a small rotation of every
+/// frame are nearly the same thing. The rotation `R` minimising `Σ |π_b(R·ray_a(uv)) − uv|²`
+/// over the map's grid is found by Gauss–Newton (numerical derivatives), and each cell's ray by
+/// `a`, rotated, is projected by `b`.
+#[must_use]
+pub fn projection_difference_rotated(
+    a: &Intrinsics,
+    b: &Intrinsics,
+    size: (u32, u32),
+) -> RotatedDifference {
+    let (cols, rows, pixels) = grid(size, MAP_COLUMNS);
+    let rays: Vec<Option<Vector3<f64>>> = pixels
+        .iter()
+        .map(|uv| {
+            a.ideal_from_pixel(uv)
+                .ok()
+                .map(|xy| Vector3::new(xy.x, xy.y, 1.0).normalize())
+        })
+        .collect();
+    let residuals = |r: &nalgebra::Rotation3<f64>| -> Vec<Option<Vector2<f64>>> {
+        rays.iter()
+            .zip(&pixels)
+            .map(|(ray, uv)| Some(b.project(&(r * (*ray)?))? - uv))
+            .collect()
+    };
+    let mut rotation = nalgebra::Rotation3::identity();
+    let h = 1e-7;
+    for _ in 0..10 {
+        let base = residuals(&rotation);
+        let shifted: Vec<Vec<Option<Vector2<f64>>>> = (0..3)
+            .map(|k| {
+                let mut w = Vector3::zeros();
+                w[k] = h;
+                residuals(&(nalgebra::Rotation3::new(w) * rotation))
+            })
+            .collect();
+        let (mut jtj, mut jtr) = (nalgebra::Matrix3::zeros(), Vector3::zeros());
+        for (i, r0) in base.iter().enumerate() {
+            let Some(r0) = r0 else { continue };
+            let cols: Option<Vec<Vector2<f64>>> = (0..3)
+                .map(|k| shifted[k][i].map(|r| (r - r0) / h))
+                .collect();
+            let Some(cols) = cols else { continue };
+            let j = nalgebra::Matrix2x3::from_columns(&[cols[0], cols[1], cols[2]]);
+            jtj += j.transpose() * j;
+            jtr += j.transpose() * r0;
+        }
+        let Some(step) = jtj.try_inverse().map(|inv| -(inv * jtr)) else {
+            break;
+        };
+        rotation = nalgebra::Rotation3::new(step) * rotation;
+        if step.norm() < 1e-12 {
+            break;
+        }
+    }
+    let flat = residuals(&rotation)
+        .into_iter()
+        .map(|r| r.map_or(f64::NAN, |r| r.norm()))
+        .collect();
+    RotatedDifference {
+        map: map_from(cols, rows, flat),
+        rotation_deg: rotation.angle().to_degrees(),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -201,6 +278,82 @@ mod tests {
         };
         let d = projection_difference(&a, &b, (3840, 2160));
         assert!((d.max - 0.5).abs() < 1e-9 && (d.rms - 0.5).abs() < 1e-9);
+    }
+
+    /// A principal-point shift is nearly a rotation of the rays: compensated, the difference
+    /// is smaller, the rotation is about the image's vertical axis by about atan(Δu0 / c), and
+    /// it is a least-squares minimum (turning it by 10 µrad about any axis costs more); a model
+    /// compared with itself differs by nothing.
+    #[test]
+    fn a_rotation_between_models_is_compensated() {
+        let a = Intrinsics {
+            k1: 0.01,
+            ..Intrinsics::pinhole(3000.0, 1920.0, 1080.0)
+        };
+        let b = Intrinsics {
+            u0: a.u0 + 2.0,
+            ..a
+        };
+        let size = (3840, 2160);
+        let plain = projection_difference(&a, &b, size);
+        let rotated = projection_difference_rotated(&a, &b, size);
+        assert!((plain.max - 2.0).abs() < 1e-9);
+        assert!(
+            rotated.map.rms < 0.3 * plain.rms,
+            "{} vs {}",
+            rotated.map.rms,
+            plain.rms
+        );
+        let expected = (2.0f64 / 3000.0).atan().to_degrees();
+        assert!(
+            (rotated.rotation_deg / expected - 1.0).abs() < 0.2,
+            "{}",
+            rotated.rotation_deg
+        );
+        // Stationarity: the sum of squares of the cells at the found rotation against turned
+        // ones (the map's cells are the same grid).
+        let (_, _, pixels) = grid(size, MAP_COLUMNS);
+        let cost = |r: &nalgebra::Rotation3<f64>| -> f64 {
+            pixels
+                .iter()
+                .map(|uv| {
+                    let xy = a.ideal_from_pixel(uv).unwrap();
+                    let q = b
+                        .project(&(r * Vector3::new(xy.x, xy.y, 1.0).normalize()))
+                        .unwrap();
+                    (q - uv).norm_squared()
+                })
+                .sum()
+        };
+        let found = rotated.map.rms.powi(2) * pixels.len() as f64;
+        let turns = (0..3).flat_map(|k| {
+            [-1e-5, 1e-5].map(|s| {
+                let mut w = Vector3::zeros();
+                w[k] = s;
+                w
+            })
+        });
+        // The rotation is about the vertical axis (the cost at it is the map's), and every
+        // turn of it raises the cost.
+        let r0 =
+            nalgebra::Rotation3::new(Vector3::new(0.0, -rotated.rotation_deg.to_radians(), 0.0));
+        let r1 =
+            nalgebra::Rotation3::new(Vector3::new(0.0, rotated.rotation_deg.to_radians(), 0.0));
+        let r = if (cost(&r0) - found).abs() < (cost(&r1) - found).abs() {
+            r0
+        } else {
+            r1
+        };
+        assert!(
+            (cost(&r) - found).abs() < 1e-6 * found.max(1e-12),
+            "{} vs {found}",
+            cost(&r)
+        );
+        for w in turns {
+            assert!(cost(&(nalgebra::Rotation3::new(w) * r)) > found);
+        }
+        let same = projection_difference_rotated(&a, &a, size);
+        assert!(same.map.max < 1e-9 && same.rotation_deg < 1e-9);
     }
 
     #[test]

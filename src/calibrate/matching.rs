@@ -63,6 +63,12 @@ pub struct MatchConfig {
     pub triangulation: LmedsConfig,
     /// Algorithm 3 options.
     pub eccentricity: EccentricityConfig,
+    /// One target, one track ([`super::tracks::consolidate`]): tracks that are one target
+    /// merged, and views of well-determined targets found where their point projects, default
+    /// true. Where the two-view rule cannot tell neighbours apart — a regular dot grid along the
+    /// epipolar lines — one target otherwise ends up as several short tracks. Off: the paper's
+    /// tracks.
+    pub merge_tracks: bool,
 }
 
 impl Default for MatchConfig {
@@ -76,6 +82,7 @@ impl Default for MatchConfig {
             correct_centres: true,
             triangulation: LmedsConfig::default(),
             eccentricity: EccentricityConfig::default(),
+            merge_tracks: true,
         }
     }
 }
@@ -127,6 +134,8 @@ pub struct Matching {
     pub pair_matches: usize,
     /// Two-view matches the conflict rule refused while chaining (step 5).
     pub conflicts: usize,
+    /// What "one target, one track" changed ([`super::tracks::consolidate`]).
+    pub consolidation: super::tracks::Consolidation,
 }
 
 /// A uniform grid over one frame's ellipse centres (covering the image and every centre).
@@ -262,14 +271,16 @@ fn frame_data(
     }
 }
 
-/// The overlapping pairs by frame indices.
-struct PairIndex<'a> {
+/// The overlapping pairs by frame indices (for Algorithm 3's partners).
+pub struct PairIndex<'a> {
     pairs: &'a [PairGeometry],
     index: HashMap<(usize, usize), usize>,
 }
 
 impl<'a> PairIndex<'a> {
-    fn new(pairs: &'a [PairGeometry]) -> Self {
+    /// Indexes `pairs` by their frames.
+    #[must_use]
+    pub fn new(pairs: &'a [PairGeometry]) -> Self {
         PairIndex {
             pairs,
             index: pairs
@@ -280,7 +291,9 @@ impl<'a> PairIndex<'a> {
         }
     }
 
-    fn has(&self, a: usize, b: usize) -> bool {
+    /// Whether `(a, b)` is an overlapping pair.
+    #[must_use]
+    pub fn has(&self, a: usize, b: usize) -> bool {
         self.index.contains_key(&(a.min(b), a.max(b)))
     }
 
@@ -438,7 +451,7 @@ impl Chains {
 }
 
 /// Algorithm 3 on a track's views at `x`; `eligible` marks the views that may be partners.
-fn corrections(
+pub(super) fn corrections(
     views: &[TrackView],
     cameras: &[FrameCamera],
     observations: &[Vec<TargetObservation>],
@@ -490,7 +503,7 @@ fn corrections(
         .collect()
 }
 
-fn observations_of(
+pub(super) fn observations_of(
     views: &[TrackView],
     cameras: &[FrameCamera],
     corrected: bool,
@@ -820,7 +833,7 @@ pub fn match_targets(
             (views, group_edges.remove(&root).unwrap_or_default())
         })
         .collect();
-    let tracks = chained
+    let tracks: Vec<Track> = chained
         .into_par_iter()
         .flat_map_iter(|(views, edges)| {
             split_track(
@@ -834,11 +847,17 @@ pub fn match_targets(
             )
         })
         .collect();
+    let (tracks, consolidation) = if config.merge_tracks {
+        super::tracks::consolidate(tracks, cameras, observations, &index, image_size, config)
+    } else {
+        (tracks, super::tracks::Consolidation::default())
+    };
     Matching {
         tracks,
         candidates,
         pair_matches,
         conflicts,
+        consolidation,
     }
 }
 

@@ -9,4 +9,5 @@ pub mod matching;
 pub mod pipeline;
 pub mod refine;
 pub mod selection;
+pub mod tracks;
 pub mod views;

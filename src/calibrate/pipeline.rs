@@ -10,13 +10,15 @@
 //! 6. the free-network self-calibrating adjustment of the corrected target centres with the
 //!    stepwise selection of distortion terms ([`super::selection`]);
 //! 7. back to 4 with the new poses and intrinsics until the set of matches does not change
-//!    between two iterations (capped, logged).
+//!    between two iterations, or the camera moves by less than a tenth of its projection σ
+//!    (capped, logged).
 
 use std::collections::HashMap;
 
 use nalgebra::{Vector2, Vector3};
 use serde::Serialize;
 
+use super::checks::{projection_difference_rotated, projection_uncertainty};
 use super::matching::{MatchConfig, Matching, match_targets};
 use super::refine::{Algorithm1, PairGeometry, RefineConfig, RefineError, algorithm1};
 use super::selection::{Selected, SelectionConfig, SelectionStep, select_terms};
@@ -52,6 +54,10 @@ pub struct CalibrateConfig {
     pub min_frames: usize,
     /// Fewer adjusted targets than this is an error.
     pub min_targets: usize,
+    /// The loop also stops when the camera moved since the last iteration by less than this
+    /// fraction of its worst projection σ (matches that still change by a view or two at the
+    /// gate, or a term on the edge of selection, then move nothing that matters), default 0.1.
+    pub camera_stable_ratio: f64,
 }
 
 impl Default for CalibrateConfig {
@@ -69,6 +75,7 @@ impl Default for CalibrateConfig {
             min_views: 3,
             min_frames: 10,
             min_targets: 20,
+            camera_stable_ratio: 0.1,
         }
     }
 }
@@ -130,6 +137,13 @@ pub struct LoopRecord {
     pub sigma0: f64,
     /// Terms selected.
     pub terms: Vec<Term>,
+    /// What "one target, one track" changed in the matches.
+    pub consolidation: crate::calibrate::tracks::Consolidation,
+    /// How far the camera moved since the previous iteration: the largest difference of the
+    /// two models' projections over the frame after compensating a rotation (px).
+    pub camera_change_px: Option<f64>,
+    /// That change over the worst projection σ of this iteration's model.
+    pub camera_change_ratio: Option<f64>,
 }
 
 /// A finished calibration.
@@ -151,8 +165,12 @@ pub struct Calibration {
     pub residual_rms_px: f64,
     /// Frame names (model order).
     pub frame_names: Vec<String>,
-    /// Adjusted poses (model order), on the inner-constraint datum.
+    /// Poses (model order), on the inner-constraint datum: adjusted for the frames of
+    /// [`Calibration::adjusted_frames`], Algorithm 1 step 4's (or the model's) for the others.
     pub cam_from_world: Vec<Rigid3>,
+    /// The frames (model order) in the final adjustment; the others saw fewer than
+    /// [`MIN_FRAME_OBSERVATIONS`] targets.
+    pub adjusted_frames: Vec<usize>,
     /// Adjusted target centres.
     pub points: Vec<Vector3<f64>>,
     /// The final adjustment's observations with residuals.
@@ -163,8 +181,11 @@ pub struct Calibration {
     pub radial_base: Vec<(f64, f64)>,
     /// The loop's iterations.
     pub iterations: Vec<LoopRecord>,
-    /// Whether the matches stopped changing before the cap.
+    /// Whether the loop converged: the matches stopped changing, or the camera stopped moving
+    /// (by less than [`CalibrateConfig::camera_stable_ratio`] of its projection σ).
     pub converged: bool,
+    /// Why the loop stopped, in words.
+    pub stop_reason: String,
     /// Algorithm 1 step 4's solver summary.
     pub feature_adjustment: Option<AdjustSummary>,
     /// The final adjustment's solver summary.
@@ -261,8 +282,9 @@ pub fn calibrate(
     let mut previous: Option<Vec<Vec<(usize, usize)>>> = None;
     let mut seen: Vec<Vec<Vec<(usize, usize)>>> = Vec::new();
     let mut iterations = Vec::new();
-    let mut last: Option<Selected> = None;
+    let mut last: Option<(Selected, Vec<usize>)> = None;
     let mut converged = false;
+    let mut stop_reason = String::new();
     for iteration in 1..=config.max_iterations {
         // Step 4.
         let obs: Vec<Vec<TargetObservation>> = cameras
@@ -284,55 +306,94 @@ pub fn calibrate(
         let changed = previous.as_ref() != Some(&signature);
         let cycle = changed && seen.contains(&signature);
         let views: usize = m.tracks.iter().map(|t| t.views.len()).sum();
-        // Stop when the matches did not change, or came back to an earlier iteration's.
-        let stop = if !changed {
-            Some(format!(
-                "iteration {iteration}: {} targets, {views} views — the matches did not change: done",
-                m.tracks.len()
-            ))
-        } else if cycle {
-            let msg = format!(
-                "iteration {iteration}: the matches returned to an earlier iteration's ({} targets, {views} views): they alternate, stopping",
-                m.tracks.len()
-            );
-            warnings.push(msg.clone());
-            Some(msg)
-        } else {
-            None
+        let record = LoopRecord {
+            iteration,
+            tracks: m.tracks.len(),
+            views,
+            changed,
+            adjusted_targets: 0,
+            adjusted_observations: 0,
+            sigma0: f64::NAN,
+            terms: Vec::new(),
+            consolidation: m.consolidation,
+            camera_change_px: None,
+            camera_change_ratio: None,
         };
-        if let Some(msg) = stop {
-            log(&msg);
-            iterations.push(LoopRecord {
-                iteration,
-                tracks: m.tracks.len(),
-                views,
-                changed,
-                adjusted_targets: 0,
-                adjusted_observations: 0,
-                sigma0: f64::NAN,
-                terms: Vec::new(),
-            });
-            converged = true;
+        // Stop when the matches did not change, or came back to an earlier iteration's.
+        if !changed || cycle {
+            stop_reason = if changed {
+                format!(
+                    "the matches returned to an earlier iteration's ({} targets, {views} views): they alternate",
+                    m.tracks.len()
+                )
+            } else {
+                format!(
+                    "the matches did not change ({} targets, {views} views)",
+                    m.tracks.len()
+                )
+            };
+            log(&format!("iteration {iteration}: {stop_reason}: done"));
+            if changed {
+                warnings.push(format!(
+                    "iteration {iteration}: {stop_reason}; the last adjustment is reported"
+                ));
+            }
+            iterations.push(record);
+            converged = !changed;
             break;
         }
         seen.push(signature.clone());
         previous = Some(signature);
         // Step 6.
-        let problem = target_problem(&m, &cameras, config)?;
+        let TargetProblem {
+            problem,
+            frames,
+            dropped_frames,
+        } = target_problem(&m, &cameras, config)?;
+        if !dropped_frames.is_empty() {
+            log(&format!(
+                "iteration {iteration}: {} frame(s) left out of the adjustment, fewer than {MIN_FRAME_OBSERVATIONS} target observations: {}",
+                dropped_frames.len(),
+                dropped_frames
+                    .iter()
+                    .map(|&k| a1.frames[k].name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
         let reference = problem.points.clone();
         let mut selected = select_terms(&problem, &config.selection, &config.adjust, log)?;
         free_network_datum(&mut selected.problem, &reference)?;
         let intrinsics = intrinsics_of(&selected.problem);
-        for (cam, pose) in cameras.iter_mut().zip(&selected.problem.cam_from_world) {
-            *cam = FrameCamera {
-                intrinsics,
-                cam_from_world: *pose,
-            };
+        // How far the camera moved since the last iteration, against its own uncertainty.
+        let change = last.as_ref().map(|(prev, _)| {
+            let moved = projection_difference_rotated(
+                &intrinsics_of(&prev.problem),
+                &intrinsics,
+                input.image_size,
+            )
+            .map
+            .max;
+            let sigma = projection_uncertainty(
+                &intrinsics,
+                &selected.precision.global_covariance,
+                input.image_size,
+            )
+            .max;
+            (moved, moved / sigma.max(f64::MIN_POSITIVE))
+        });
+        for cam in cameras.iter_mut() {
+            cam.intrinsics = intrinsics;
+        }
+        for (&frame, pose) in frames.iter().zip(&selected.problem.cam_from_world) {
+            cameras[frame].cam_from_world = *pose;
         }
         refresh_pairs(&mut pairs, &cameras);
         log(&format!(
-            "iteration {iteration}: {} targets matched ({views} views), {} adjusted with {} observations; σ0 {:.4} px; terms {}",
+            "iteration {iteration}: {} targets matched ({views} views; {} merged, {} views added by their points), {} adjusted with {} observations; σ0 {:.4} px; terms {}{}",
             m.tracks.len(),
+            m.consolidation.merged,
+            m.consolidation.grown,
             selected.problem.points.len(),
             selected.precision.observations,
             selected.precision.sigma0,
@@ -341,36 +402,53 @@ pub fn calibrate(
                 .iter()
                 .map(|t| t.name())
                 .collect::<Vec<_>>()
-                .join(", ")
+                .join(", "),
+            change.map_or(String::new(), |(px, ratio)| format!(
+                "; the camera moved by {px:.4} px at most ({ratio:.3} × its projection σ)"
+            ))
         ));
         iterations.push(LoopRecord {
-            iteration,
-            tracks: m.tracks.len(),
-            views,
-            changed,
             adjusted_targets: selected.problem.points.len(),
             adjusted_observations: selected.precision.observations,
             sigma0: selected.precision.sigma0,
             terms: selected.terms.clone(),
+            camera_change_px: change.map(|c| c.0),
+            camera_change_ratio: change.map(|c| c.1),
+            ..record
         });
-        last = Some(selected);
+        last = Some((selected, frames));
+        if let Some((px, ratio)) = change
+            && ratio < config.camera_stable_ratio
+        {
+            stop_reason = format!(
+                "the matches changed ({} targets, {views} views) but the camera moved by {px:.4} px at most over the frame, {ratio:.3} × its projection σ (below {})",
+                m.tracks.len(),
+                config.camera_stable_ratio
+            );
+            log(&format!("iteration {iteration}: {stop_reason}: done"));
+            converged = true;
+            break;
+        }
     }
-    if !converged {
-        let msg = format!(
-            "the matches still changed after {} iterations; the last adjustment is reported",
+    if !converged && stop_reason.is_empty() {
+        stop_reason = format!(
+            "the matches still changed after {} iterations",
             config.max_iterations
         );
+        let msg = format!("{stop_reason}; the last adjustment is reported");
         log(&msg);
         warnings.push(msg);
     }
-    let Some(selected) = last else {
+    let Some((selected, frames)) = last else {
         return Err(CalibrateError::Input("no iteration ran".into()));
     };
     finish(
         selected,
+        &frames,
+        &cameras,
         &a1,
         iterations,
-        converged,
+        (converged, stop_reason),
         feature_adjustment,
         warnings,
         initial,
@@ -380,9 +458,11 @@ pub fn calibrate(
 #[allow(clippy::too_many_arguments)]
 fn finish(
     selected: Selected,
+    frames: &[usize],
+    cameras: &[FrameCamera],
     a1: &Algorithm1,
     iterations: Vec<LoopRecord>,
-    converged: bool,
+    (converged, stop_reason): (bool, String),
     feature_adjustment: Option<AdjustSummary>,
     mut warnings: Vec<String>,
     initial: Intrinsics,
@@ -399,7 +479,7 @@ fn finish(
         .filter_map(|o| {
             let r = -p.residual(o)?;
             Some(CalibrationObservation {
-                frame: o.camera,
+                frame: frames[o.camera],
                 target: o.point,
                 uv: [o.uv.x, o.uv.y],
                 residual: [r.x, r.y],
@@ -422,13 +502,15 @@ fn finish(
         redundancy: selected.precision.redundancy,
         residual_rms_px,
         frame_names: a1.frames.iter().map(|f| f.name.clone()).collect(),
-        cam_from_world: p.cam_from_world.clone(),
+        cam_from_world: cameras.iter().map(|c| c.cam_from_world).collect(),
+        adjusted_frames: frames.to_vec(),
         points: p.points.clone(),
         observations,
         selection: selected.steps.clone(),
         radial_base: selected.radial_base.clone(),
         iterations,
         converged,
+        stop_reason,
         feature_adjustment,
         summary: selected.summary,
         warnings,
@@ -526,56 +608,111 @@ fn match_signature(m: &Matching) -> Vec<Vec<(usize, usize)>> {
     s
 }
 
+/// The target adjustment of one iteration, on the frames that observe enough targets.
+struct TargetProblem {
+    problem: Problem<BrownModel>,
+    /// Per problem camera, its frame (model order).
+    frames: Vec<usize>,
+    /// Frames left out: too few target observations to fix their pose.
+    dropped_frames: Vec<usize>,
+}
+
+/// Fewest target observations a frame needs in the adjustment: three points fix a pose, six
+/// leave it redundancy (a frame with fewer has its pose undetermined or unchecked, and a free
+/// network with such a pose is singular).
+pub const MIN_FRAME_OBSERVATIONS: usize = 6;
+
 /// The target adjustment: every track with enough corrected views, observed at Algorithm 3's
-/// centre mapped back into observed pixels.
+/// centre mapped back into observed pixels, on the frames that see at least
+/// [`MIN_FRAME_OBSERVATIONS`] of them (frames with fewer are left out, and the tracks that
+/// then have too few views with them, until both hold).
 fn target_problem(
     m: &Matching,
     cameras: &[FrameCamera],
     config: &CalibrateConfig,
-) -> Result<Problem<BrownModel>, CalibrateError> {
-    let mut points = Vec::new();
-    let mut observations = Vec::new();
-    for track in &m.tracks {
-        let views: Vec<(usize, Vector2<f64>)> = track
-            .views
-            .iter()
-            .filter_map(|v| {
-                let c = v.corrected?;
-                let uv = cameras[v.frame].distort(&c)?;
-                Some((v.frame, uv))
-            })
-            .collect();
-        if views.len() < config.min_views {
-            continue;
+) -> Result<TargetProblem, CalibrateError> {
+    /// A target's point and its (frame, observed pixel) views.
+    type Views = (Vector3<f64>, Vec<(usize, Vector2<f64>)>);
+    let mut tracks: Vec<Views> = m
+        .tracks
+        .iter()
+        .map(|track| {
+            let views = track
+                .views
+                .iter()
+                .filter_map(|v| {
+                    let c = v.corrected?;
+                    let uv = cameras[v.frame].distort(&c)?;
+                    Some((v.frame, uv))
+                })
+                .collect();
+            (track.point.coords, views)
+        })
+        .collect();
+    let mut keep_frame = vec![true; cameras.len()];
+    loop {
+        tracks.retain(|(_, views)| views.len() >= config.min_views);
+        let mut count = vec![0usize; cameras.len()];
+        for (_, views) in &tracks {
+            for (frame, _) in views {
+                count[*frame] += 1;
+            }
         }
+        let mut changed = false;
+        for (keep, n) in keep_frame.iter_mut().zip(&count) {
+            if *keep && *n < MIN_FRAME_OBSERVATIONS {
+                *keep = false;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+        for (_, views) in &mut tracks {
+            views.retain(|(frame, _)| keep_frame[*frame]);
+        }
+    }
+    if tracks.len() < config.min_targets {
+        return Err(CalibrateError::TooFew {
+            what: "targets with enough corrected views",
+            found: tracks.len(),
+            required: config.min_targets,
+        });
+    }
+    let frames: Vec<usize> = (0..cameras.len()).filter(|&k| keep_frame[k]).collect();
+    let dropped_frames = (0..cameras.len()).filter(|&k| !keep_frame[k]).collect();
+    let mut camera_of = vec![usize::MAX; cameras.len()];
+    for (k, &f) in frames.iter().enumerate() {
+        camera_of[f] = k;
+    }
+    let mut points = Vec::with_capacity(tracks.len());
+    let mut observations = Vec::new();
+    for (point, views) in tracks {
         let id = points.len();
-        points.push(track.point.coords);
+        points.push(point);
         for (frame, uv) in views {
             observations.push(Observation {
-                camera: frame,
+                camera: camera_of[frame],
                 point: id,
                 uv,
                 weight: 1.0,
             });
         }
     }
-    if points.len() < config.min_targets {
-        return Err(CalibrateError::TooFew {
-            what: "targets with enough corrected views",
-            found: points.len(),
-            required: config.min_targets,
-        });
-    }
     let intrinsics = cameras[0].intrinsics;
     let problem = Problem::new(
         BrownModel,
-        cameras.iter().map(|c| c.cam_from_world).collect(),
+        frames.iter().map(|&f| cameras[f].cam_from_world).collect(),
         Vec::new(),
         intrinsics.to_array().to_vec(),
         points,
         observations,
     )?;
-    Ok(problem)
+    Ok(TargetProblem {
+        problem,
+        frames,
+        dropped_frames,
+    })
 }
 
 /// The intrinsics Algorithm 1 step 4 adjusts with the poses in a calibration.

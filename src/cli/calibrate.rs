@@ -150,6 +150,9 @@ struct ReportJson<'a> {
     selection: &'a [pipemeasure::calibrate::selection::SelectionStep],
     iterations: &'a [pipemeasure::calibrate::pipeline::LoopRecord],
     converged: bool,
+    stop_reason: &'a str,
+    /// Frames (by name) in the final adjustment; the others saw too few targets.
+    adjusted_frames: Vec<&'a str>,
     redundancy: usize,
     feature_adjustment: Option<pipemeasure::adjust::AdjustSummary>,
     adjustment: pipemeasure::adjust::AdjustSummary,
@@ -360,6 +363,23 @@ fn write_report(
         cal.residual_rms_px,
         cal.redundancy
     );
+    md += &format!(
+        "The loop ran {} iteration(s) and stopped because {}{}.\n\n",
+        cal.iterations.len(),
+        cal.stop_reason,
+        if cal.converged {
+            ""
+        } else {
+            " (not converged)"
+        }
+    );
+    if cal.adjusted_frames.len() < cal.frame_names.len() {
+        md += &format!(
+            "{} of the {} frames saw too few matched targets to enter the adjustment.\n\n",
+            cal.frame_names.len() - cal.adjusted_frames.len(),
+            cal.frame_names.len()
+        );
+    }
     md += &intrinsics_table(cal);
     md += "\nCorrelations above 0.9 (flagged):\n\n";
     let high = &report.high_correlations;
@@ -483,6 +503,12 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             selection: &cal.selection,
             iterations: &cal.iterations,
             converged: cal.converged,
+            stop_reason: &cal.stop_reason,
+            adjusted_frames: cal
+                .adjusted_frames
+                .iter()
+                .map(|&k| cal.frame_names[k].as_str())
+                .collect(),
             redundancy: cal.redundancy,
             feature_adjustment: cal.feature_adjustment,
             adjustment: cal.summary,

@@ -12,6 +12,8 @@ use serde::{Deserialize, Serialize};
 
 /// √χ²₀.₉₇₅ with 2 degrees of freedom (paper eq. 2): 2.7162.
 pub const SQRT_CHI2_975_2DOF: f64 = 2.716_203_1;
+/// √χ²₀.₉₉₉ with 2 degrees of freedom: 3.7169 (`χ² = −2 ln 0.001`).
+pub const SQRT_CHI2_999_2DOF: f64 = 3.716_922_2;
 /// χ²₀.₉₇₅ with 2 degrees of freedom: 7.3778.
 pub const CHI2_975_2DOF: f64 = 7.377_758_9;
 /// Median of χ²(2): 2·ln 2 = 1.3863.
