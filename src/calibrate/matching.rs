@@ -66,8 +66,9 @@ pub struct MatchConfig {
     /// One target, one track ([`super::tracks::consolidate`]): tracks that are one target
     /// merged, and views of well-determined targets found where their point projects, default
     /// true. Where the two-view rule cannot tell neighbours apart — a regular dot grid along the
-    /// epipolar lines — one target otherwise ends up as several short tracks. Off: the paper's
-    /// tracks.
+    /// epipolar lines — one target otherwise ends up as several short tracks. It needs tracks
+    /// cleaned by the robust triangulation (a mixed track's point claims neighbours' views), so
+    /// it runs only with [`MatchConfig::robust_triangulation`]. Off: the paper's tracks.
     pub merge_tracks: bool,
 }
 
@@ -847,7 +848,7 @@ pub fn match_targets(
             )
         })
         .collect();
-    let (tracks, consolidation) = if config.merge_tracks {
+    let (tracks, consolidation) = if config.merge_tracks && config.robust_triangulation {
         super::tracks::consolidate(tracks, cameras, observations, &index, image_size, config)
     } else {
         (tracks, super::tracks::Consolidation::default())
