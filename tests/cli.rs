@@ -323,6 +323,57 @@ fn match_command_tracks_hold_one_target_each() {
             "a track mixes targets {ids:?}"
         );
     }
+    // With a profile (here the true camera): the stand-in's poses were adjusted with its own
+    // SIMPLE_RADIAL camera, so the features do not fit the profile until the poses are
+    // re-adjusted to it; afterwards Algorithm 1's σ is the features' 0.5 px.
+    let profile = Profile::uncalibrated("truecam", &truth.camera.camera(), BTreeMap::new());
+    profile
+        .write(&dir.path().join("truecam.json"), false)
+        .unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "match",
+            "--frames",
+            "lab/frames",
+            "--sfm",
+            "lab/sparse",
+            "--device",
+            "truecam.json",
+            "--json",
+            "tracks_profile.json",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let out: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("tracks_profile.json")).unwrap(),
+    )
+    .unwrap();
+    let a1 = &out["algorithm1"];
+    let (before, after) = (
+        a1["reprojection_sigma_before_readjustment_px"]
+            .as_f64()
+            .unwrap(),
+        a1["reprojection_sigma_px"].as_f64().unwrap(),
+    );
+    let noise = truth
+        .sfm
+        .as_ref()
+        .unwrap()
+        .stand_in
+        .as_ref()
+        .unwrap()
+        .feature_noise_px;
+    assert!(
+        after > 0.8 * noise && after < 1.1 * noise,
+        "σ after re-adjustment {after} px, feature noise {noise} px"
+    );
+    assert!(
+        before > 1.5 * after,
+        "σ before {before} px, after {after} px"
+    );
+    assert!(stderr.contains("after re-adjusting the poses"), "{stderr}");
     let (code, _, stderr) = pipemeasure(
         dir.path(),
         &["match", "--frames", "nowhere", "--sfm", "lab/sparse"],
@@ -502,4 +553,189 @@ fn fit_cylinder_command_reports_json_and_exit_3_when_nothing_is_found() {
         stderr.contains("empty.ply") && stderr.contains("no finite points"),
         "{stderr}"
     );
+}
+
+/// `calibrate --check-points --network`: the truth's target centres, shuffled, in a survey
+/// frame (rotated, offset by hundreds of km) with 0.02 mm noise and one foreign point, are associated by geometry; the RMS object-space error
+/// after the similarity agrees with what the targets' own σ predict (within 30 %); every target
+/// and adjusted frame is in report.json with its σ; the COLMAP export reads back with the
+/// profile's camera and the targets' observations; bad check-point files are refused before
+/// the calibration runs.
+#[test]
+fn calibrate_reports_the_network_and_check_points() {
+    use rand::{Rng, SeedableRng};
+    let dir = tempfile::tempdir().unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "simulate", "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames",
+            "16", "--out", "lab", "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let truth = pipemeasure::sim::truth::Truth::read(&dir.path().join("lab/truth.json")).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let rotation = nalgebra::UnitQuaternion::from_euler_angles(0.3, -0.2, 2.1);
+    let offset = nalgebra::Vector3::new(500_000.0, 5_600_000.0, 120.0);
+    let mut rows: Vec<String> = truth
+        .targets
+        .iter()
+        .map(|t| {
+            let noise = nalgebra::Vector3::from_fn(|_, _| {
+                // Box–Muller: σ = 0.02 mm per axis.
+                let (u1, u2): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random());
+                2e-5 * (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+            });
+            let p = rotation * nalgebra::Vector3::from(t.centre) + offset + noise;
+            format!("T{},{:.6},{:.6},{:.6}", t.id, p.x, p.y, p.z)
+        })
+        .collect();
+    rows.push(format!(
+        "STRAY,{:.6},{:.6},{:.6}",
+        offset.x + 9.0,
+        offset.y - 4.0,
+        offset.z + 3.0
+    ));
+    // Shuffle (Fisher–Yates).
+    for k in (1..rows.len()).rev() {
+        rows.swap(k, rng.random_range(0..=k));
+    }
+    std::fs::write(
+        dir.path().join("check.csv"),
+        format!("id,x,y,z\n{}\n", rows.join("\n")),
+    )
+    .unwrap();
+    let args = [
+        "calibrate",
+        "--device",
+        "p30net",
+        "--frames",
+        "lab/frames",
+        "--sfm",
+        "lab/sparse",
+        "--out",
+        "prof.json",
+        "--report",
+        "report",
+        "--network",
+        "network",
+        "--check-points",
+        "check.csv",
+        "--check-point-sigma",
+        "0.00002",
+        "--quiet",
+    ];
+    let (code, stdout, stderr) = pipemeasure(dir.path(), &args, &[]);
+    assert_eq!(code, 0, "{stderr}\n{stdout}");
+    assert!(stdout.contains("check points:"), "{stdout}");
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("report/report.json")).unwrap(),
+    )
+    .unwrap();
+    let net = &report["network"];
+    let targets = net["targets"].as_array().unwrap();
+    let frames = net["frames"].as_array().unwrap();
+    assert!(targets.len() >= 40, "{} targets", targets.len());
+    assert_eq!(
+        frames.len(),
+        report["adjusted_frames"].as_array().unwrap().len()
+    );
+    for t in targets {
+        assert!(t["views"].as_array().unwrap().len() >= 2, "{t}");
+        assert!(
+            t["std"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .all(|s| s.as_f64().unwrap() > 0.0),
+            "{t}"
+        );
+    }
+    for f in frames {
+        let s = f["centre_std"].as_array().unwrap();
+        assert!(s.iter().all(|s| s.as_f64().unwrap() > 0.0), "{f}");
+    }
+    let cp = &report["check_points"];
+    let points = cp["points"].as_array().unwrap();
+    // Every matched target is a true target: its check point is the one of its own id.
+    assert_eq!(
+        cp["unassociated"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|u| *u == "STRAY")
+            .count(),
+        1
+    );
+    assert!(
+        points.len() >= targets.len() - 2,
+        "{} of {}",
+        points.len(),
+        targets.len()
+    );
+    let (rms, predicted) = (
+        cp["rms_m"].as_f64().unwrap(),
+        cp["predicted_rms_m"].as_f64().unwrap(),
+    );
+    assert!(
+        (rms / predicted - 1.0).abs() < 0.3,
+        "check-point RMS {rms} m, the targets' σ predict {predicted} m"
+    );
+    // The scale is the lab's: metres per SfM unit is 1 / the stand-in's similarity scale.
+    let sim_scale = truth
+        .sfm
+        .as_ref()
+        .unwrap()
+        .stand_in
+        .as_ref()
+        .unwrap()
+        .similarity
+        .scale;
+    assert!((cp["scale"].as_f64().unwrap() * sim_scale - 1.0).abs() < 1e-3);
+    let md = std::fs::read_to_string(dir.path().join("report/report.md")).unwrap();
+    assert!(md.contains("Check points:"), "{md}");
+    // The COLMAP export.
+    let model = pipemeasure::io::colmap::Reconstruction::read(&dir.path().join("network")).unwrap();
+    assert_eq!(model.images.len(), frames.len());
+    assert_eq!(model.points3d.len(), targets.len());
+    let observations: usize = model.points3d.values().map(|p| p.track.len()).sum();
+    assert_eq!(
+        observations,
+        report["observations"].as_array().unwrap().len()
+    );
+    let profile = pipemeasure::profile::Profile::read(&dir.path().join("prof.json")).unwrap();
+    let cam =
+        pipemeasure::camera::convert::brown_from_colmap(model.cameras.values().next().unwrap())
+            .unwrap()
+            .camera;
+    assert!((cam.intrinsics.c - profile.intrinsics.c).abs() < 1e-9 * profile.intrinsics.c);
+    // Bad check-point files fail at once, naming the problem.
+    std::fs::write(
+        dir.path().join("three.csv"),
+        "id,x,y,z\na,0,0,0\nb,1,0,0\nc,0,1,0\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.path().join("dup.csv"),
+        "id,x,y,z\na,0,0,0\na,1,0,0\nc,0,1,0\nd,0,0,1\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.path().join("far.csv"),
+        "id,x,y,z\na,0,0,0\nb,1,0,0\nc,0,1,0\nd,0,0,1\ne,3,0.5,0\nf,0.2,7,1\n",
+    )
+    .unwrap();
+    for (file, expect, code_expected) in [
+        ("three.csv", "at least 4", 1),
+        ("dup.csv", "dup.csv:3", 1),
+        ("far.csv", "could be associated", 1),
+    ] {
+        let mut a = args.to_vec();
+        a[14] = file;
+        a.push("--force");
+        let (code, _, stderr) = pipemeasure(dir.path(), &a, &[]);
+        assert_eq!(code, code_expected, "{file}: {stderr}");
+        assert!(stderr.contains(expect), "{file}: {stderr}");
+    }
 }

@@ -24,6 +24,9 @@ fn site(out: &Path, noise_free: bool, seed: u64) -> Truth {
         options.sfm = SfmConfig {
             rotation_noise_deg: 0.0,
             translation_noise_m: 0.0,
+            // The perturbed-truth stand-in (its own bundle adjustment would co-adapt the poses
+            // with its EXIF camera): exact poses, the cloud through the true camera.
+            adjust: false,
             ..Default::default()
         };
         site.dense.noise_px = 0.0;

@@ -3,10 +3,13 @@
 //! views), Algorithm 3 (`eccentricity`: the image of each target's true centre), on the
 //! frames' cameras and detections in undistorted pixel coordinates (`views`).
 
+pub mod check_points;
 pub mod checks;
 pub mod eccentricity;
 pub mod matching;
+pub mod network;
 pub mod pipeline;
+pub mod poses;
 pub mod refine;
 pub mod selection;
 pub mod tracks;

@@ -173,6 +173,12 @@ pub struct Calibration {
     pub adjusted_frames: Vec<usize>,
     /// Adjusted target centres.
     pub points: Vec<Vector3<f64>>,
+    /// Covariance of each adjusted target (σ0²·Q, minimum trace over all targets), when the
+    /// network is small enough for the dense inverse ([`MAX_COVARIANCE_UNKNOWNS`]).
+    pub point_covariance: Option<Vec<nalgebra::Matrix3<f64>>>,
+    /// Covariance of each adjusted frame's pose step `(δω, δt)` (σ0²·Q; order of
+    /// [`Calibration::adjusted_frames`]).
+    pub pose_covariance: Option<Vec<nalgebra::Matrix6<f64>>>,
     /// The final adjustment's observations with residuals.
     pub observations: Vec<CalibrationObservation>,
     /// The selection decisions of the final adjustment.
@@ -493,6 +499,7 @@ fn finish(
     let residual_rms_px = (ss / (2.0 * observations.len().max(1) as f64)).sqrt();
     let intrinsics = intrinsics_of(p);
     warnings.extend(geometry_warnings(&selected, p));
+    let (point_covariance, pose_covariance) = network_covariance(p, &mut warnings);
     Ok(Calibration {
         intrinsics,
         terms: selected.terms.clone(),
@@ -505,6 +512,8 @@ fn finish(
         cam_from_world: cameras.iter().map(|c| c.cam_from_world).collect(),
         adjusted_frames: frames.to_vec(),
         points: p.points.clone(),
+        point_covariance,
+        pose_covariance,
         observations,
         selection: selected.steps.clone(),
         radial_base: selected.radial_base.clone(),
@@ -516,6 +525,55 @@ fn finish(
         warnings,
         initial,
     })
+}
+
+/// Largest number of unknowns for which the targets' covariances are computed (a dense
+/// inverse of the full normal matrix).
+pub const MAX_COVARIANCE_UNKNOWNS: usize = 6000;
+
+/// The targets' and poses' covariances of the final adjustment; `None` (with a warning) when
+/// the network is too large or the precision cannot be computed.
+#[allow(clippy::type_complexity)]
+fn network_covariance(
+    p: &Problem<BrownModel>,
+    warnings: &mut Vec<String>,
+) -> (
+    Option<Vec<nalgebra::Matrix3<f64>>>,
+    Option<Vec<nalgebra::Matrix6<f64>>>,
+) {
+    let unknowns = p.num_free_parameters();
+    let request = crate::adjust::PrecisionRequest {
+        poses: true,
+        points: unknowns <= MAX_COVARIANCE_UNKNOWNS,
+    };
+    match crate::adjust::precision(p, request) {
+        Ok(precision) => {
+            let dg = p.global.len();
+            let dc = (precision
+                .reduced_covariance
+                .as_ref()
+                .map_or(0, nalgebra::DMatrix::nrows)
+                .saturating_sub(dg))
+                / p.cam_from_world.len().max(1);
+            let poses = precision.reduced_covariance.as_ref().map(|c| {
+                (0..p.cam_from_world.len())
+                    .map(|j| c.fixed_view::<6, 6>(dg + j * dc, dg + j * dc).into_owned())
+                    .collect()
+            });
+            if !request.points {
+                warnings.push(format!(
+                    "the network has {unknowns} unknowns: the targets' covariances were not computed (at most {MAX_COVARIANCE_UNKNOWNS})"
+                ));
+            }
+            (precision.point_covariance, poses)
+        }
+        Err(e) => {
+            warnings.push(format!(
+                "the network's covariances could not be computed: {e}"
+            ));
+            (None, None)
+        }
+    }
 }
 
 /// Warnings about projective coupling: high correlations of c with the pose depth (a planar

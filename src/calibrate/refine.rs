@@ -419,6 +419,45 @@ pub fn algorithm1(
         .collect();
 
     // Step 3: robust triangulation per track.
+    let (tracks, rejected_tracks, reprojection_sigma) =
+        triangulate_tracks(model, &frames, &index_of, &features, config);
+    Ok(Algorithm1 {
+        frames,
+        pairs,
+        tracks,
+        rejected_tracks,
+        reprojection_sigma,
+    })
+}
+
+/// Algorithm 1 step 3 again with the frames' current cameras (e.g. after the poses were
+/// re-adjusted): every track robustly triangulated, its inliers and Algorithm 1's reprojection
+/// σ recomputed. The pairs are left as they are.
+pub fn retriangulate(model: &Reconstruction, a1: &mut Algorithm1, config: &RefineConfig) {
+    let index_of: HashMap<ImageId, usize> = a1
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| (f.image_id, k))
+        .collect();
+    let features = undistorted_features(model, &a1.frames);
+    let (tracks, rejected, sigma) =
+        triangulate_tracks(model, &a1.frames, &index_of, &features, config);
+    a1.tracks = tracks;
+    a1.rejected_tracks = rejected;
+    a1.reprojection_sigma = sigma;
+}
+
+/// Step 3: every track of the model robustly triangulated through the frames' cameras; the
+/// tracks with two or more inlier views, the number rejected, and the robust reprojection σ of
+/// the inliers, `sqrt(median r² / 1.3863)`.
+fn triangulate_tracks(
+    model: &Reconstruction,
+    frames: &[ModelFrame],
+    index_of: &HashMap<ImageId, usize>,
+    features: &[Vec<Option<Vector2<f64>>>],
+    config: &RefineConfig,
+) -> (Vec<TrackInliers>, usize, f64) {
     let points: Vec<(&Point3dId, &crate::io::colmap::Point3D)> = model.points3d.iter().collect();
     let results: Vec<Option<(TrackInliers, Vec<f64>)>> = points
         .par_iter()
@@ -471,13 +510,7 @@ pub fn algorithm1(
         (lower_median(&mut squared) / CHI2_MEDIAN_2DOF).sqrt()
     };
     let tracks = results.into_iter().flatten().map(|(t, _)| t).collect();
-    Ok(Algorithm1 {
-        frames,
-        pairs,
-        tracks,
-        rejected_tracks,
-        reprojection_sigma,
-    })
+    (tracks, rejected_tracks, reprojection_sigma)
 }
 
 #[cfg(test)]

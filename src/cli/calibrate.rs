@@ -1,6 +1,7 @@
 //! `pipemeasure calibrate --device NAME --frames DIR [--sfm MODEL] [--out PATH] [--report DIR]
-//! [--force] [--cross-validate]`: the calibration loop on a lab video's frames, written as a
-//! device profile.
+//! [--force] [--cross-validate] [--network DIR] [--check-points CSV]`: the calibration loop on a
+//! lab video's frames, written as a device profile; the adjusted network in the report (and as a
+//! COLMAP model), and its object-space accuracy against check points.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -8,15 +9,17 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result, bail};
 use nalgebra::Vector2;
 use pipemeasure::adjust::correlation;
+use pipemeasure::calibrate::check_points::{CheckPointReport, check_points};
 use pipemeasure::calibrate::checks::{
     DistortionCheck, ImageMap, check_distortion, projection_difference, projection_uncertainty,
 };
+use pipemeasure::calibrate::network::colmap_network;
 use pipemeasure::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, calibrate};
 use pipemeasure::camera::Term;
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
-use pipemeasure::io::colmap::{Reconstruction, run_colmap_sfm};
+use pipemeasure::io::colmap::{ModelFormat, Reconstruction, run_colmap_sfm};
 use pipemeasure::profile::{
     CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, StdDev,
 };
@@ -62,6 +65,18 @@ pub struct Args {
     /// Cap on matching/adjustment iterations.
     #[arg(long, default_value_t = 5)]
     max_iterations: usize,
+    /// Write the adjusted network as a COLMAP model (text) into this folder: the profile's
+    /// camera, the images at their adjusted poses, the targets as points3D.
+    #[arg(long)]
+    network: Option<PathBuf>,
+    /// Reference coordinates of the targets (`id,x,y,z` in metres, any frame; ids need not
+    /// match): the object-space accuracy of the adjusted targets after a 7-parameter
+    /// similarity, in the report and on stdout.
+    #[arg(long)]
+    check_points: Option<PathBuf>,
+    /// σ per axis of the check points (m), for the predicted RMS.
+    #[arg(long, default_value_t = 0.0)]
+    check_point_sigma: f64,
 }
 
 /// The SfM model: the given one, or COLMAP's.
@@ -162,6 +177,10 @@ struct ReportJson<'a> {
     high_correlations: Vec<(String, String, f64)>,
     warnings: &'a [String],
     observations: &'a [pipemeasure::calibrate::pipeline::CalibrationObservation],
+    /// The adjusted targets and frames with their σ.
+    network: &'a pipemeasure::calibrate::network::Network,
+    /// The check points' comparison, when given.
+    check_points: Option<&'a CheckPointReport>,
 }
 
 fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> Profile {
@@ -402,6 +421,9 @@ fn write_report(
             s.reason
         );
     }
+    if let Some(c) = report.check_points {
+        md += &check_points_markdown(c);
+    }
     for w in report.warnings {
         md += &format!("\n**warning:** {w}\n");
     }
@@ -409,9 +431,63 @@ fn write_report(
     Ok(())
 }
 
+/// The check points' section of `report.md`.
+fn check_points_markdown(c: &CheckPointReport) -> String {
+    let mut md = format!(
+        "\nCheck points: {} associated, {} not; after a 7-parameter similarity (scale {:.6} m per SfM unit) RMS {:.3} mm, median {:.3} mm, max {:.3} mm{}.\n\n",
+        c.points.len(),
+        c.unassociated.len(),
+        c.scale,
+        c.rms_m * 1e3,
+        c.median_m * 1e3,
+        c.max_m * 1e3,
+        c.predicted_rms_m.map_or(String::new(), |p| format!(
+            " (the targets' σ predict {:.3} mm)",
+            p * 1e3
+        ))
+    );
+    md += "| id | target | dx (mm) | dy (mm) | dz (mm) | distance (mm) |\n|---|---|---|---|---|---|\n";
+    for p in &c.points {
+        md += &format!(
+            "| {} | {} | {:+.3} | {:+.3} | {:+.3} | {:.3} |\n",
+            p.id,
+            p.target,
+            p.residual_m[0] * 1e3,
+            p.residual_m[1] * 1e3,
+            p.residual_m[2] * 1e3,
+            p.distance_m * 1e3
+        );
+    }
+    if !c.unassociated.is_empty() {
+        md += &format!("\nNot associated: {}\n", c.unassociated.join(", "));
+    }
+    md
+}
+
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
     if !args.frames.is_dir() {
         bail!("--frames {}: not a folder", args.frames.display());
+    }
+    if !(args.check_point_sigma.is_finite() && args.check_point_sigma >= 0.0) {
+        bail!(
+            "--check-point-sigma {}: must be a number ≥ 0 (m)",
+            args.check_point_sigma
+        );
+    }
+    // Read the check points first: a bad file fails before minutes of calibration.
+    let check_list = args
+        .check_points
+        .as_ref()
+        .map(|p| pipemeasure::io::tls::read_targets(p))
+        .transpose()?;
+    if let (Some(c), Some(p)) = (&check_list, &args.check_points)
+        && c.len() < 4
+    {
+        bail!(
+            "{}: {} check point(s); a 7-parameter similarity needs at least 4",
+            p.display(),
+            c.len()
+        );
     }
     let out = args
         .out
@@ -492,6 +568,30 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     );
     let profile = profile_of(args, &cal, size, &model_name);
     let high = high_correlations(&profile);
+    let network = pipemeasure::calibrate::network::network(&cal);
+    let check_report = match (&check_list, &args.check_points) {
+        (Some(points), Some(path)) => {
+            let list: Vec<(String, nalgebra::Point3<f64>)> =
+                points.iter().map(|t| (t.id.clone(), t.position)).collect();
+            Some(
+                check_points(
+                    &cal.points,
+                    cal.point_covariance.as_deref(),
+                    &list,
+                    args.check_point_sigma,
+                )
+                .with_context(|| format!("check points {}", path.display()))?,
+            )
+        }
+        _ => None,
+    };
+    let colmap = match &args.network {
+        Some(_) => Some(
+            colmap_network(&cal, &profile.camera())
+                .context("exporting the adjusted network as a COLMAP model")?,
+        ),
+        None => None,
+    };
     profile
         .write(&out, args.force)
         .with_context(|| format!("writing the profile {}", out.display()))?;
@@ -518,6 +618,8 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             high_correlations: high.clone(),
             warnings: &warnings,
             observations: &cal.observations,
+            network: &network,
+            check_points: check_report.as_ref(),
         };
         write_report(dir, &cal, size, &report)?;
     }
@@ -550,6 +652,41 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     }
     for w in &warnings {
         outln!("WARNING: {w}");
+    }
+    if let Some(c) = &check_report {
+        outln!(
+            "check points: {} associated ({} not), RMS {:.3} mm, median {:.3} mm, max {:.3} mm after a similarity{}",
+            c.points.len(),
+            c.unassociated.len(),
+            c.rms_m * 1e3,
+            c.median_m * 1e3,
+            c.max_m * 1e3,
+            c.predicted_rms_m.map_or(String::new(), |p| format!(
+                "; the targets' σ predict {:.3} mm",
+                p * 1e3
+            ))
+        );
+    }
+    if let (Some(dir), Some(net)) = (&args.network, &colmap) {
+        net.model
+            .write(dir, ModelFormat::Text)
+            .with_context(|| format!("writing the network {}", dir.display()))?;
+        outln!(
+            "adjusted network written to {} as a COLMAP model ({} images, {} targets; camera {}{})",
+            dir.display(),
+            net.model.images.len(),
+            net.model.points3d.len(),
+            net.camera_model.name(),
+            if net.exact {
+                " holding the profile exactly".to_string()
+            } else {
+                format!(
+                    ", up to {:.3} px from the profile: COLMAP has no {}",
+                    net.max_error_px,
+                    net.missing_terms.join(", ")
+                )
+            }
+        );
     }
     outln!("profile written to {}", out.display());
     if let Some(dir) = &args.report {

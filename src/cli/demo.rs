@@ -164,7 +164,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let lab_truth = Truth::read(&lab.join("truth.json"))?;
     print_table(&lab_truth, &profile, &result)?;
     outln!(
-        "\nStep 4 measured dense/fused.ply as the simulator writes it (triangulated at the SfM stand-in's unrefined poses: 0.1° and 3 mm errors); step 5 first adjusts the poses on the feature tracks, as a dense reconstruction from a bundle-adjusted model would."
+        "\nStep 4 re-adjusted the SfM model's poses to the profile (they had been adjusted with the SfM stand-in's own SIMPLE_RADIAL camera) and re-triangulated dense/fused.ply through the profile at those poses (fused.ply.vis names each point's images); step 5 re-fuses the dense observations through each method's camera."
     );
     let summary = DemoJson {
         schema: "pipemeasure.demo/1",

@@ -5,7 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use pipemeasure::adjust::AdjustConfig;
 use pipemeasure::calibrate::matching::{MatchConfig, Matching};
+use pipemeasure::calibrate::poses::consistent_poses;
 use pipemeasure::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
 use pipemeasure::calibrate::views::TargetObservation;
 use pipemeasure::camera::Intrinsics;
@@ -84,6 +86,10 @@ struct Algorithm1Out {
     rejected_tracks: usize,
     track_inlier_fraction: f64,
     reprojection_sigma_px: f64,
+    /// With `--device`: the σ with the model's poses and the profile, before they were
+    /// re-adjusted to it (`reprojection_sigma_px` is after).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    reprojection_sigma_before_readjustment_px: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -162,7 +168,13 @@ pub(super) fn model_image_size(model: &Reconstruction) -> Result<(u32, u32)> {
     ))
 }
 
-fn output(model: &Path, a1: &Algorithm1, obs: &[Vec<TargetObservation>], m: &Matching) -> MatchOut {
+fn output(
+    model: &Path,
+    a1: &Algorithm1,
+    sigma_before: Option<f64>,
+    obs: &[Vec<TargetObservation>],
+    m: &Matching,
+) -> MatchOut {
     let frames: Vec<String> = a1.frames.iter().map(|f| f.name.clone()).collect();
     let targets = m
         .tracks
@@ -210,6 +222,7 @@ fn output(model: &Path, a1: &Algorithm1, obs: &[Vec<TargetObservation>], m: &Mat
             rejected_tracks: a1.rejected_tracks,
             track_inlier_fraction: a1.track_inlier_fraction(),
             reprojection_sigma_px: a1.reprojection_sigma,
+            reprojection_sigma_before_readjustment_px: sigma_before,
         },
         candidates: m.candidates,
         pair_matches: m.pair_matches,
@@ -227,12 +240,31 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         bail!("--frames {}: not a folder", args.frames.display());
     }
     let intrinsics = intrinsics_for(args.device.as_deref(), &model)?;
-    let a1 = algorithm1(
-        &model,
-        intrinsics.as_ref().map(|(i, _)| i),
-        &RefineConfig::default(),
-    )
-    .with_context(|| format!("Algorithm 1 on {}", args.sfm.display()))?;
+    // With a profile, the model's poses (adjusted with the SfM program's own camera) are first
+    // re-adjusted to the profile's intrinsics.
+    let (a1, sigma_before) = match &intrinsics {
+        Some((i, _)) => {
+            let p = consistent_poses(
+                &model,
+                i,
+                &RefineConfig::default(),
+                &AdjustConfig::default(),
+            )
+            .with_context(|| format!("Algorithm 1 on {}", args.sfm.display()))?;
+            if !globals.quiet {
+                eprintln!(
+                    "Algorithm 1: reprojection σ {:.2} px with the model's poses and the profile, {:.2} px after re-adjusting the poses to it",
+                    p.sigma_before_px, p.sigma_after_px
+                );
+            }
+            (p.a1, Some(p.sigma_before_px))
+        }
+        None => (
+            algorithm1(&model, None, &RefineConfig::default())
+                .with_context(|| format!("Algorithm 1 on {}", args.sfm.display()))?,
+            None,
+        ),
+    };
     let names: Vec<String> = a1.frames.iter().map(|f| f.name.clone()).collect();
     let detected = detect_named_frames(&args.frames, &names, args.min_semi_minor, globals.quiet)?;
     let size = model_image_size(&model)?;
@@ -254,7 +286,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         a1.reprojection_sigma,
         &config,
     );
-    let out = output(&args.sfm, &a1, &obs, &m);
+    let out = output(&args.sfm, &a1, sigma_before, &obs, &m);
     if let Some(path) = &args.json {
         write_bytes_atomic(path, serde_json::to_string_pretty(&out)?.as_bytes())?;
     }

@@ -20,6 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::calibrate::matching::{MatchConfig, Matching, match_targets};
+use crate::calibrate::poses::consistent_poses;
 use crate::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
 use crate::calibrate::views::{FrameCamera, TargetObservation, observations};
 use crate::geometry::conic::Ellipse;
@@ -118,7 +119,16 @@ pub fn prepare(scenario: &Scenario) -> Result<Prepared, String> {
         seed: scenario.options.seed,
         ..RefineConfig::default()
     };
-    let a1 = algorithm1(&model, intrinsics.as_ref(), &refine).map_err(|e| e.to_string())?;
+    // Given intrinsics meet poses adjusted with the SfM program's own camera: re-adjusted to
+    // them first, as the product does (`match --device`).
+    let a1 = match &intrinsics {
+        Some(i) => {
+            consistent_poses(&model, i, &refine, &crate::adjust::AdjustConfig::default())
+                .map_err(|e| e.to_string())?
+                .a1
+        }
+        None => algorithm1(&model, None, &refine).map_err(|e| e.to_string())?,
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(scenario.options.seed ^ 0x00DE_7EC7);
     let mut cameras = Vec::new();
     let mut obs = Vec::new();

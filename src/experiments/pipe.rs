@@ -25,6 +25,7 @@ use serde::Serialize;
 use crate::adjust::{AdjustConfig, Similarity};
 use crate::calibrate::matching::MatchConfig;
 use crate::calibrate::pipeline::{adjust_feature_tracks, refresh_pairs};
+use crate::calibrate::poses::consistent_poses;
 use crate::calibrate::refine::{RefineConfig, algorithm1};
 use crate::calibrate::views::FrameCamera;
 use crate::camera::{BrownCamera, Intrinsics, Term};
@@ -193,12 +194,34 @@ pub fn run_site(
             Method::PreCalibration => (Some(&profile.intrinsics), &[]),
             Method::InSitu => (None, &[Term::C, Term::K1, Term::K2]),
         };
-        let a1 =
-            algorithm1(&model, initial, &RefineConfig::default()).map_err(|e| e.to_string())?;
-        let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
-        let (summary, intrinsics, poses) =
-            adjust_feature_tracks(&model, &a1, &cameras, free, &AdjustConfig::default())
+        // Pre-calibration as the main command does it: the poses re-adjusted to the profile
+        // (two rounds with re-triangulation); in situ: COLMAP's radial self-calibration.
+        let (a1, summary, intrinsics, poses) = match initial {
+            Some(i) => {
+                let p = consistent_poses(
+                    &model,
+                    i,
+                    &RefineConfig::default(),
+                    &AdjustConfig::default(),
+                )
                 .map_err(|e| format!("{}: {e}", method.name()))?;
+                let poses: Vec<_> =
+                    p.a1.frames
+                        .iter()
+                        .map(|f| f.camera.cam_from_world)
+                        .collect();
+                (p.a1, p.summary, *i, poses)
+            }
+            None => {
+                let a1 = algorithm1(&model, None, &RefineConfig::default())
+                    .map_err(|e| e.to_string())?;
+                let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
+                let (summary, intrinsics, poses) =
+                    adjust_feature_tracks(&model, &a1, &cameras, free, &AdjustConfig::default())
+                        .map_err(|e| format!("{}: {e}", method.name()))?;
+                (a1, summary, intrinsics, poses)
+            }
+        };
         let cameras: Vec<FrameCamera> = poses
             .iter()
             .map(|&cam_from_world| FrameCamera {
@@ -234,7 +257,7 @@ pub fn run_site(
             intrinsics,
             ..profile
         };
-        let cloud = fuse(&dense, &camera, &frame_poses);
+        let (cloud, _) = fuse(&dense, &camera, &frame_poses);
         let points: Vec<Vector3<f64>> = cloud.points.iter().map(|p| p.coords).collect();
         let associated = estimate.associated.len();
         let scaling = Scaling::Targets(estimate);

@@ -13,5 +13,6 @@ pub mod frames;
 pub mod observations;
 pub mod ply;
 pub mod tls;
+pub mod vis;
 
 pub use error::{Location, ReadError, ReadErrorKind, WriteError};

@@ -8,6 +8,7 @@ pub mod cloud;
 pub mod cylinder;
 pub mod pipe;
 pub mod scale;
+pub mod site;
 pub mod targets;
 mod zorder;
 

@@ -7,9 +7,10 @@
 //!   them (in front, inside, facing, unoccluded), keeping at most 8 frames spread over the
 //!   sequence, each observation with Gaussian pixel noise (σ = 0.3 px by default: dense
 //!   matching precision). Points seen in fewer than 3 frames are dropped.
-//! * `fused.ply` is each point triangulated from its noisy observations through the *true*
-//!   camera at the SfM model's poses, in the SfM frame: what a dense reconstruction with perfect
-//!   intrinsics would give.
+//! * `fused.ply` is each point triangulated from its noisy observations through the SfM
+//!   model's own camera at its poses, in the SfM frame, as COLMAP's dense reconstruction does
+//!   (through the true camera for the perturbed-truth stand-in, whose camera was never
+//!   adjusted); `fused.ply.vis` says which images saw each point, in COLMAP's format.
 //! * The TLS scan casts rays from one station on a regular angular grid and adds range noise;
 //!   the TLS target list adds per-axis noise to the true centres. Both carry an optional
 //!   coordinate offset (site coordinates are large).
@@ -196,33 +197,34 @@ pub fn dense_observations(
 
 /// Triangulates every dense point through `camera` at `poses` (any frame, e.g. the SfM
 /// model's; `None` for frames without a pose, whose observations are skipped): the dense
-/// cloud. Points left with fewer than two views or that do not triangulate in front of their
-/// cameras are dropped.
+/// cloud, and per cloud point the frames (indices into `observations.frames`) it was
+/// triangulated from — what COLMAP's `fused.ply.vis` records. Points left with fewer than two
+/// views or that do not triangulate in front of their cameras are dropped.
 #[must_use]
 pub fn fuse(
     observations: &DenseObservations,
     camera: &BrownCamera,
     poses: &[Option<Rigid3>],
-) -> PointCloud {
-    let fused: Vec<(Point3<f64>, u8)> = observations
+) -> (PointCloud, Vec<Vec<u32>>) {
+    let fused: Vec<(Point3<f64>, u8, Vec<u32>)> = observations
         .points
         .par_iter()
         .filter_map(|p| {
-            let obs: Vec<Observation> = p
+            let (obs, frames): (Vec<Observation>, Vec<u32>) = p
                 .observations
                 .iter()
                 .filter_map(|o| {
                     let xy = camera.intrinsics.ideal_from_pixel(&o.uv).ok()?;
-                    Some(Observation::normalized(
-                        poses.get(o.frame as usize)?.as_ref()?,
-                        xy,
+                    Some((
+                        Observation::normalized(poses.get(o.frame as usize)?.as_ref()?, xy),
+                        o.frame,
                     ))
                 })
-                .collect();
+                .unzip();
             if obs.len() < 2 {
                 return None;
             }
-            triangulate(&obs).map(|x| (x, p.label))
+            triangulate(&obs).map(|x| (x, p.label, frames))
         })
         .collect();
     let grey = |label: u8| {
@@ -232,11 +234,12 @@ pub fn fuse(
             [120, 115, 110]
         }
     };
-    PointCloud {
+    let cloud = PointCloud {
         points: fused.iter().map(|f| f.0).collect(),
         colors: Some(fused.iter().map(|f| grey(f.1)).collect()),
         ..Default::default()
-    }
+    };
+    (cloud, fused.into_iter().map(|f| f.2).collect())
 }
 
 /// The TLS scan: one station, a regular angular grid over the wall region behind the pipes,

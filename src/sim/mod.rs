@@ -2,6 +2,7 @@
 //! It may use value types, I/O and profiles, never the algorithms it judges (`detect`,
 //! `robust`, `calibrate`, `adjust`, `measure`), so that its truth stays independent.
 
+pub mod bundle;
 pub mod dense;
 pub mod devices;
 pub mod lab;

@@ -15,8 +15,9 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::bundle::{BundleObservation, SimpleRadial, adjust, reprojection_error, umeyama};
 use super::scene::Scene;
-use super::truth::{SfmTruth, Similarity, StandInTruth};
+use super::truth::{SfmTruth, Similarity, StandInAdjustment, StandInTruth};
 use crate::camera::BrownCamera;
 use crate::geometry::Rigid3;
 use crate::geometry::pose::{camera_centre, colmap_from_rigid};
@@ -43,6 +44,11 @@ pub struct SfmConfig {
     pub points: usize,
     /// Apply a random similarity to the world (default true); false keeps the true frame.
     pub random_similarity: bool,
+    /// Adjust the perturbed poses, points and the SIMPLE_RADIAL camera's `f` and `k` to the
+    /// features, as COLMAP's bundle adjustment does ([`super::bundle`]), default true: the
+    /// poses then absorb the errors of that camera, like a real SfM model's. False: the
+    /// truth's poses perturbed, the camera left at its EXIF guess.
+    pub adjust: bool,
 }
 
 impl Default for SfmConfig {
@@ -55,6 +61,7 @@ impl Default for SfmConfig {
             mismatch_fraction: 0.03,
             points: 4000,
             random_similarity: true,
+            adjust: true,
         }
     }
 }
@@ -167,6 +174,7 @@ pub fn stand_in(
     // hits outside target plates.
     let mut mismatches = 0;
     let mut attempts = 0;
+    let mut true_points = Vec::new();
     while model.points3d.len() < config.points && attempts < config.points * 20 {
         attempts += 1;
         let f = rng.random_range(0..poses.len());
@@ -214,6 +222,7 @@ pub fn stand_in(
                 point3d_id: Some(id),
             });
         }
+        true_points.push(p);
         let noisy = p + Vector3::new(gaussian(&mut rng), gaussian(&mut rng), gaussian(&mut rng))
             * config.translation_noise_m;
         let x = similarity.apply(&noisy);
@@ -228,6 +237,12 @@ pub fn stand_in(
             },
         );
     }
+    let (similarity, adjustment) = if config.adjust {
+        let adjustment = adjust_model(&mut model, &true_points);
+        (adjustment.similarity.clone(), Some(adjustment))
+    } else {
+        (similarity, None)
+    };
     let truth = SfmTruth {
         source: "stand-in".into(),
         points: model.points3d.len(),
@@ -239,9 +254,177 @@ pub fn stand_in(
             feature_noise_px: config.feature_noise_px,
             mismatch_fraction: config.mismatch_fraction,
             mismatches,
+            adjustment,
         }),
     };
     (model, truth)
+}
+
+/// COLMAP's global bundle adjustment on the stand-in model, in place (poses, points, `f`, `k`
+/// of its one SIMPLE_RADIAL camera; [`super::bundle`]): adjust, remove the observations off by
+/// more than 4 px and the points left with fewer than two, adjust again. `true_points[j]` is
+/// the world point of the `j`-th model point (id `j + 1`); the returned similarity maps the
+/// world onto the adjusted points best (the SfM frame is the adjustment's).
+fn adjust_model(model: &mut Reconstruction, true_points: &[Point3<f64>]) -> StandInAdjustment {
+    const MAX_ERROR_PX: f64 = 4.0;
+    let ids: Vec<ImageId> = model.images.keys().copied().collect();
+    let frame_of = |id: ImageId| ids.iter().position(|&i| i == id);
+    let params = &model.cameras[&CameraId(1)].params;
+    let mut camera = SimpleRadial {
+        f: params[0],
+        cx: params[1],
+        cy: params[2],
+        k: params[3],
+    };
+    let initial_f = camera.f;
+    let mut poses: Vec<Rigid3> = ids
+        .iter()
+        .map(|id| model.images[id].cam_from_world())
+        .collect();
+    let point_ids: Vec<Point3dId> = model.points3d.keys().copied().collect();
+    let mut points: Vec<Point3<f64>> = point_ids
+        .iter()
+        .map(|id| Point3::from(model.points3d[id].xyz))
+        .collect();
+    let mut keep: Vec<Vec<bool>> = point_ids
+        .iter()
+        .map(|id| vec![true; model.points3d[id].track.len()])
+        .collect();
+    // Per point, its track's observations (`None` for an image the model does not have).
+    let per_point: Vec<Vec<Option<BundleObservation>>> = point_ids
+        .iter()
+        .enumerate()
+        .map(|(j, id)| {
+            model.points3d[id]
+                .track
+                .iter()
+                .map(|e| {
+                    Some(BundleObservation {
+                        frame: frame_of(e.image_id)?,
+                        point: j,
+                        uv: model
+                            .images
+                            .get(&e.image_id)?
+                            .points2d
+                            .get(e.point2d_idx as usize)?
+                            .uv,
+                    })
+                })
+                .collect()
+        })
+        .collect();
+    let observations = |keep: &[Vec<bool>]| -> Vec<BundleObservation> {
+        per_point
+            .iter()
+            .zip(keep)
+            .flat_map(|(list, k)| {
+                list.iter()
+                    .zip(k)
+                    .filter(|(_, k)| **k)
+                    .filter_map(|(o, _)| *o)
+            })
+            .collect()
+    };
+    let initial_rms = {
+        let obs = observations(&keep);
+        let sq: f64 = obs
+            .iter()
+            .map(|o| {
+                reprojection_error(&camera, &poses[o.frame], &points[o.point], &o.uv)
+                    .powi(2)
+                    .min(1e4)
+            })
+            .sum();
+        (sq / obs.len().max(1) as f64).sqrt()
+    };
+    adjust(
+        &mut camera,
+        &mut poses,
+        &mut points,
+        &observations(&keep),
+        40,
+    );
+    let mut removed_observations = 0;
+    for (list, k) in per_point.iter().zip(keep.iter_mut()) {
+        for (o, k) in list.iter().zip(k.iter_mut()) {
+            let off = o.is_none_or(|o| {
+                reprojection_error(&camera, &poses[o.frame], &points[o.point], &o.uv) > MAX_ERROR_PX
+            });
+            if off && *k {
+                *k = false;
+                removed_observations += 1;
+            }
+        }
+        if k.iter().filter(|k| **k).count() < 2 {
+            k.iter_mut().for_each(|k| *k = false);
+        }
+    }
+    let final_rms = adjust(
+        &mut camera,
+        &mut poses,
+        &mut points,
+        &observations(&keep),
+        40,
+    );
+    // Write the adjusted model back; removed observations unlinked, emptied points deleted.
+    if let Some(cam) = model.cameras.get_mut(&CameraId(1)) {
+        cam.params = vec![camera.f, camera.cx, camera.cy, camera.k];
+    }
+    for (id, pose) in ids.iter().zip(&poses) {
+        if let Some(image) = model.images.get_mut(id) {
+            image.set_cam_from_world(pose);
+        }
+    }
+    let mut removed_points = 0;
+    let mut kept_true = Vec::new();
+    let mut kept_adjusted = Vec::new();
+    for (j, id) in point_ids.iter().enumerate() {
+        let Some(mut point) = model.points3d.remove(id) else {
+            continue;
+        };
+        let mut track = Vec::new();
+        for (e, k) in point.track.iter().zip(&keep[j]) {
+            if *k {
+                track.push(*e);
+            } else if let Some(p2) = model
+                .images
+                .get_mut(&e.image_id)
+                .and_then(|im| im.points2d.get_mut(e.point2d_idx as usize))
+            {
+                p2.point3d_id = None;
+            }
+        }
+        if track.is_empty() {
+            removed_points += 1;
+            continue;
+        }
+        point.track = track;
+        point.xyz = points[j].coords.into();
+        kept_true.push(true_points[j]);
+        kept_adjusted.push(points[j]);
+        model.points3d.insert(*id, point);
+    }
+    let similarity =
+        umeyama(&kept_true, &kept_adjusted).map_or_else(Similarity::identity, |(s, r, t)| {
+            let rotation = nalgebra::UnitQuaternion::from_matrix(&r);
+            let (qvec, _) =
+                colmap_from_rigid(&Rigid3::from_parts(Translation3::identity(), rotation));
+            Similarity {
+                scale: s,
+                qvec,
+                tvec: t.into(),
+            }
+        });
+    StandInAdjustment {
+        similarity,
+        initial_focal_px: initial_f,
+        focal_px: camera.f,
+        k: camera.k,
+        initial_rms_px: initial_rms,
+        rms_px: final_rms,
+        removed_observations,
+        removed_points,
+    }
 }
 
 #[cfg(test)]
@@ -265,6 +448,7 @@ mod tests {
             rotation_noise_deg: 0.0,
             translation_noise_m: 0.0,
             feature_noise_px: 0.0,
+            adjust: false,
             ..Default::default()
         };
         let (model, truth) = stand_in(&scene, &camera, &poses, &names, &sfm, 3);
@@ -287,5 +471,57 @@ mod tests {
         assert_eq!(bad, stand_in.mismatches);
         assert!(good > 600 && bad > 0, "{good} good, {bad} mismatched");
         assert_ne!(stand_in.similarity.scale, 1.0);
+    }
+
+    /// The adjusted stand-in is co-adapted like COLMAP's model: its own camera reprojects its
+    /// features at the noise level, while the true camera at its poses does not (its poses
+    /// absorbed the EXIF camera's missing distortion); and its points stay the world's up to
+    /// the recorded similarity within the pose noise.
+    #[test]
+    fn adjusted_stand_in_poses_fit_its_own_camera_not_the_true_one() {
+        let cfg = LabConfig {
+            frames: 10,
+            ..Default::default()
+        };
+        let scene = build_scene(&cfg, 0.01, 4);
+        let camera = preset_camera(&P30, 960, 540);
+        let poses: Vec<_> = path(&cfg, 4).iter().map(|s| s.cam_from_world).collect();
+        let names: Vec<_> = (1..=10).map(|k| format!("frame_{k:04}.png")).collect();
+        let sfm = SfmConfig {
+            points: 1500,
+            mismatch_fraction: 0.0,
+            ..Default::default()
+        };
+        let (model, truth) = stand_in(&scene, &camera, &poses, &names, &sfm, 4);
+        let adjustment = truth.stand_in.unwrap().adjustment.unwrap();
+        let own = crate::camera::convert::brown_from_colmap(&model.cameras[&CameraId(1)])
+            .unwrap()
+            .camera
+            .intrinsics;
+        let rms = |i: &crate::camera::Intrinsics| {
+            let (mut sq, mut n) = (0.0, 0);
+            for p in model.points3d.values() {
+                for el in &p.track {
+                    let image = &model.images[&el.image_id];
+                    let p_cam = image.cam_from_world() * Point3::from(p.xyz);
+                    if let Some(uv) = i.project(&p_cam.coords) {
+                        sq += (uv - image.points2d[el.point2d_idx as usize].uv).norm_squared();
+                        n += 1;
+                    }
+                }
+            }
+            (sq / f64::from(n)).sqrt()
+        };
+        let (own_rms, true_rms) = (rms(&own), rms(&camera.intrinsics));
+        // 0.5 px per coordinate: 0.71 px per observation, less the points' own fit.
+        assert!(
+            own_rms < 0.75 && (own_rms - adjustment.rms_px).abs() < 1e-9,
+            "{own_rms}"
+        );
+        assert!(
+            true_rms > 2.0 * own_rms,
+            "true camera {true_rms} px, own {own_rms} px"
+        );
+        assert!((adjustment.focal_px - adjustment.initial_focal_px).abs() > 1.0);
     }
 }

@@ -440,13 +440,33 @@ pub fn simulate_site(
                 field: "sparse",
                 reason: e.to_string(),
             })?;
-    // Frames the SfM did not register have no pose; their observations are left out.
+    // As COLMAP's dense reconstruction: through the model's own camera at its poses (frames
+    // the SfM did not register have no pose; their observations are left out).
     let sfm_poses: Vec<_> = names
         .iter()
         .map(|n| model.image_by_name(n).map(|(_, im)| im.cam_from_world()))
         .collect();
-    let fused = fuse(&obs, &camera, &sfm_poses);
+    // The perturbed-truth stand-in's camera was never adjusted (an EXIF guess): its cloud is
+    // fused through the true camera, a dense reconstruction with perfect intrinsics.
+    let sfm_camera = match (options.sfm_source, options.sfm.adjust) {
+        (SfmSource::StandIn, false) => camera,
+        _ => sfm_camera(&model, &camera)?,
+    };
+    let (fused, frames_of) = fuse(&obs, &sfm_camera, &sfm_poses);
     crate::io::ply::write_binary(&dense_dir.join("fused.ply"), &fused)?;
+    // fused.ply.vis: each point's images by position in the model's images file (id order).
+    let position: Vec<Option<u32>> = names
+        .iter()
+        .map(|n| {
+            let (id, _) = model.image_by_name(n)?;
+            model.images.keys().position(|&i| i == id).map(|k| k as u32)
+        })
+        .collect();
+    let visibility: Vec<Vec<u32>> = frames_of
+        .iter()
+        .map(|f| f.iter().filter_map(|&k| position[k as usize]).collect())
+        .collect();
+    crate::io::vis::write(&dense_dir.join("fused.ply.vis"), &visibility)?;
 
     // TLS scan and targets.
     let scan = tls_scan(&scene, &site.tls, options.seed);
@@ -480,6 +500,27 @@ pub fn simulate_site(
     };
     write_truth(&truth, out)?;
     Ok(truth)
+}
+
+/// The sparse model's camera as a Brown camera of the frames' size (what a dense
+/// reconstruction of that model triangulates with).
+fn sfm_camera(
+    model: &crate::io::colmap::Reconstruction,
+    camera: &BrownCamera,
+) -> Result<BrownCamera, SimError> {
+    let cam = model.cameras.values().next().ok_or(SimError::Option {
+        field: "sparse",
+        reason: "the SfM model has no camera".into(),
+    })?;
+    let converted =
+        crate::camera::convert::brown_from_colmap(cam).map_err(|e| SimError::Option {
+            field: "sparse",
+            reason: e.to_string(),
+        })?;
+    Ok(BrownCamera {
+        intrinsics: converted.camera.intrinsics,
+        ..*camera
+    })
 }
 
 /// Writes `out/sparse` from the stand-in or from COLMAP.

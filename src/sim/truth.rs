@@ -175,6 +175,31 @@ pub struct StandInTruth {
     pub mismatch_fraction: f64,
     /// Observations that were made gross mismatches.
     pub mismatches: usize,
+    /// The stand-in's bundle adjustment, when it ran (then `similarity` is the best fit of the
+    /// world onto the adjusted points).
+    #[serde(default)]
+    pub adjustment: Option<StandInAdjustment>,
+}
+
+/// What the SfM stand-in's bundle adjustment ([`super::bundle`]) did.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StandInAdjustment {
+    /// The least-squares similarity from the true world onto the adjusted points.
+    pub similarity: Similarity,
+    /// The SIMPLE_RADIAL camera's focal length before (the EXIF-like guess) and after (px).
+    pub initial_focal_px: f64,
+    /// Focal length after (px).
+    pub focal_px: f64,
+    /// Radial coefficient after.
+    pub k: f64,
+    /// RMS reprojection error before and after (px; each error capped at 100 px before).
+    pub initial_rms_px: f64,
+    /// RMS after.
+    pub rms_px: f64,
+    /// Observations removed for an error above 4 px.
+    pub removed_observations: usize,
+    /// Points removed for fewer than two observations left.
+    pub removed_points: usize,
 }
 
 /// A pipe of the site.

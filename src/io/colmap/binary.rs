@@ -99,7 +99,7 @@ fn load(path: &Path) -> Result<Vec<u8>, ReadError> {
 pub(super) fn read(dir: &Path) -> Result<Reconstruction, ReadError> {
     Ok(Reconstruction {
         cameras: read_cameras(&dir.join("cameras.bin"))?,
-        images: read_images(&dir.join("images.bin"))?,
+        images: read_images(&dir.join("images.bin"))?.0,
         points3d: read_points(&dir.join("points3D.bin"))?,
     })
 }
@@ -143,7 +143,10 @@ fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadErr
     Ok(cameras)
 }
 
-fn read_images(path: &Path) -> Result<BTreeMap<ImageId, Image>, ReadError> {
+pub(super) fn read_images(
+    path: &Path,
+) -> Result<(BTreeMap<ImageId, Image>, Vec<ImageId>), ReadError> {
+    let mut order = Vec::new();
     let data = load(path)?;
     let mut r = Reader {
         path,
@@ -191,6 +194,7 @@ fn read_images(path: &Path) -> Result<BTreeMap<ImageId, Image>, ReadError> {
                 point3d_id,
             });
         }
+        order.push(id);
         if images
             .insert(
                 id,
@@ -208,7 +212,7 @@ fn read_images(path: &Path) -> Result<BTreeMap<ImageId, Image>, ReadError> {
         }
     }
     trailing(&r)?;
-    Ok(images)
+    Ok((images, order))
 }
 
 fn read_points(path: &Path) -> Result<BTreeMap<Point3dId, Point3D>, ReadError> {

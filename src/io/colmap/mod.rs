@@ -156,6 +156,21 @@ impl Reconstruction {
         }
     }
 
+    /// The model's image ids in the order of its images file (binary if `cameras.bin` exists).
+    /// COLMAP's dense workspace numbers images in this order (`fused.ply.vis` refers to images
+    /// by their position in it), and COLMAP 3.8 writes images in hash-map order, not by id.
+    ///
+    /// # Errors
+    ///
+    /// As [`Reconstruction::read`].
+    pub fn image_file_order(dir: &Path) -> Result<Vec<ImageId>, ReadError> {
+        if dir.join("cameras.bin").is_file() {
+            Ok(binary::read_images(&dir.join("images.bin"))?.1)
+        } else {
+            Ok(text::read_images(&dir.join("images.txt"))?.1)
+        }
+    }
+
     /// Reads a model folder in the given format.
     ///
     /// # Errors

@@ -77,7 +77,7 @@ fn is_data(line: &str) -> bool {
 pub(super) fn read(dir: &Path) -> Result<Reconstruction, ReadError> {
     Ok(Reconstruction {
         cameras: read_cameras(&dir.join("cameras.txt"))?,
-        images: read_images(&dir.join("images.txt"))?,
+        images: read_images(&dir.join("images.txt"))?.0,
         points3d: read_points(&dir.join("points3D.txt"))?,
     })
 }
@@ -134,7 +134,10 @@ fn read_cameras(
     Ok(cameras)
 }
 
-fn read_images(path: &Path) -> Result<std::collections::BTreeMap<ImageId, Image>, ReadError> {
+pub(super) fn read_images(
+    path: &Path,
+) -> Result<(std::collections::BTreeMap<ImageId, Image>, Vec<ImageId>), ReadError> {
+    let mut order = Vec::new();
     let text = read_text(path)?;
     let mut images = std::collections::BTreeMap::new();
     let mut lines = text.lines().enumerate();
@@ -204,6 +207,7 @@ fn read_images(path: &Path) -> Result<std::collections::BTreeMap<ImageId, Image>
             name,
             points2d,
         };
+        order.push(id);
         if images.insert(id, image).is_some() {
             return Err(
                 Cursor { path, line: k + 1 }.err(ReadErrorKind::Invalid(format!(
@@ -213,7 +217,7 @@ fn read_images(path: &Path) -> Result<std::collections::BTreeMap<ImageId, Image>
             );
         }
     }
-    Ok(images)
+    Ok((images, order))
 }
 
 fn read_points(path: &Path) -> Result<std::collections::BTreeMap<Point3dId, Point3D>, ReadError> {

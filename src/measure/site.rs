@@ -1,0 +1,764 @@
+//! The site's chain, paper "Summary of Methods" on site: the workspace found, the device
+//! profile's intrinsics, the SfM model's poses re-adjusted to them (Algorithm 1 with the
+//! intrinsics fixed, [`crate::calibrate::poses`]), the targets detected, matched and corrected
+//! (Algorithms 2–3), the scale (or the similarity) from them against the TLS targets, the dense
+//! cloud re-triangulated through the profile and the re-adjusted poses (when COLMAP's
+//! `fused.ply.vis` says which images saw each point), the pipe fitted, and the report.
+//!
+//! Defaults follow COLMAP's workspace (for `WS/dense/0/fused.ply`: the model in
+//! `dense/0/sparse`, the frames in `dense/0/images`, `WS/tls_targets.csv`) and the simulator's
+//! (`OUT/dense/fused.ply`, `OUT/sparse`, `OUT/frames`, `OUT/tls_targets.csv`): each is searched
+//! for in the cloud's folder and up to two folders above it, nearest first.
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Point3, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::cylinder::{CylinderConfig, CylinderError};
+use super::pipe::{PipeMeasurement, Reference, Region, Scaling, measure_pipe, reference_fit};
+use super::scale::{ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};
+use super::targets::match_site_targets;
+use crate::adjust::AdjustConfig;
+use crate::calibrate::matching::MatchConfig;
+use crate::calibrate::pipeline::CalibrateError;
+use crate::calibrate::poses::{ConsistentPoses, consistent_poses};
+use crate::calibrate::refine::RefineConfig;
+use crate::calibrate::views::FrameCamera;
+use crate::camera::convert::{ColmapModel, brown_from_colmap};
+use crate::camera::{BrownCamera, Intrinsics};
+use crate::detect::{DetectConfig, DetectFilesError, detect_frame_files};
+use crate::geometry::triangulation::{Observation, triangulate};
+use crate::io::ReadError;
+use crate::io::colmap::{ImageId, Reconstruction};
+use crate::io::tls::read_targets;
+use crate::profile::{ProfileError, load_device};
+
+/// Why the site could not be measured.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SiteError {
+    /// An input is missing or does not fit the others (the message says which and why).
+    #[error("{0}")]
+    Input(String),
+    /// A file could not be read.
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    /// The device profile.
+    #[error(transparent)]
+    Profile(#[from] ProfileError),
+    /// The poses could not be re-adjusted to the profile.
+    #[error("Algorithm 1 on {}: {source}", path.display())]
+    Poses {
+        /// The model.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: CalibrateError,
+    },
+    /// Detection in the frames.
+    #[error("detecting the targets of the model's frames: {0}")]
+    Detect(#[from] DetectFilesError),
+    /// The scale.
+    #[error("scale from {}: {source}", path.display())]
+    Scale {
+        /// The TLS target list.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: ScaleError,
+    },
+    /// The pipe fit.
+    #[error("fitting the pipe in {}: {source}", path.display())]
+    Fit {
+        /// The cloud (or scan).
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: CylinderError,
+    },
+}
+
+/// What the user gave (paths not given are searched for next to the cloud).
+#[derive(Clone, Debug, Default)]
+pub struct SiteRequest {
+    /// The dense cloud (PLY or E57).
+    pub cloud: PathBuf,
+    /// Device profile (a name in `calibrations/` or a path).
+    pub device: Option<String>,
+    /// The SfM model.
+    pub sfm: Option<PathBuf>,
+    /// The frames.
+    pub frames: Option<PathBuf>,
+    /// The TLS target list.
+    pub tls_targets: Option<PathBuf>,
+    /// Only these TLS targets.
+    pub tls_ids: Vec<String>,
+    /// The TLS scan, fitted as the reference.
+    pub tls_scan: Option<PathBuf>,
+    /// A given scale instead of the targets'.
+    pub scale: Option<f64>,
+    /// Smallest semi-minor axis of a target to use (px).
+    pub min_semi_minor_px: f64,
+    /// The region of interest in the measured frame.
+    pub region: Option<Region>,
+    /// The cylinder search.
+    pub cylinder: CylinderConfig,
+}
+
+/// The first existing `name` in the cloud's folder, its parent and grandparent.
+fn search_up(cloud: &Path, names: &[&str], ok: impl Fn(&Path) -> bool) -> Option<PathBuf> {
+    let dir = match cloud.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    dir.ancestors()
+        .take(3)
+        .flat_map(|d| names.iter().map(move |n| d.join(n)))
+        .find(|p| ok(p))
+}
+
+fn is_model(dir: &Path) -> bool {
+    ["cameras.txt", "cameras.bin"]
+        .iter()
+        .any(|f| dir.join(f).is_file())
+}
+
+/// A path given, or searched for, or a clear error naming where we looked.
+fn resolve(
+    given: Option<&PathBuf>,
+    cloud: &Path,
+    names: &[&str],
+    ok: impl Fn(&Path) -> bool,
+    what: &str,
+    flag: &str,
+) -> Result<PathBuf, SiteError> {
+    if let Some(p) = given {
+        if !p.exists() {
+            return Err(SiteError::Input(format!(
+                "{flag} {}: not found",
+                p.display()
+            )));
+        }
+        return Ok(p.clone());
+    }
+    search_up(cloud, names, ok).ok_or_else(|| {
+        SiteError::Input(format!(
+            "no {what} found next to {} or up to two folders above it (looked for {}); give it with {flag}",
+            cloud.display(),
+            names.join(", ")
+        ))
+    })
+}
+
+/// The image size of the model's (first) camera.
+///
+/// # Errors
+///
+/// [`SiteError::Input`] for a model without a camera.
+pub fn model_image_size(model: &Reconstruction) -> Result<(u32, u32), SiteError> {
+    let Some(camera) = model.cameras.values().next() else {
+        return Err(SiteError::Input("the model has no camera".into()));
+    };
+    Ok((
+        u32::try_from(camera.width).unwrap_or(u32::MAX),
+        u32::try_from(camera.height).unwrap_or(u32::MAX),
+    ))
+}
+
+/// The intrinsics to observe the targets with: the profile's for frames as recorded, the
+/// model's pinhole camera for frames already undistorted (checked against the profile); with
+/// whether the frames are undistorted.
+///
+/// # Errors
+///
+/// [`SiteError::Input`] when the profile is for another aspect ratio, or the model's pinhole
+/// camera is not the profile's.
+pub fn site_intrinsics(
+    device: &str,
+    profile_path: &Path,
+    profile_cam: &BrownCamera,
+    model: &Reconstruction,
+) -> Result<(Intrinsics, bool), SiteError> {
+    let Some(cam) = model.cameras.values().next() else {
+        return Err(SiteError::Input("the model has no camera".into()));
+    };
+    let (w, h) = model_image_size(model)?;
+    if u64::from(profile_cam.width) * u64::from(h) != u64::from(profile_cam.height) * u64::from(w) {
+        return Err(SiteError::Input(format!(
+            "device {device} ({}) is for {}x{} frames but the model's camera is {w}x{h}: another aspect ratio, so these frames are not from this device",
+            profile_path.display(),
+            profile_cam.width,
+            profile_cam.height
+        )));
+    }
+    let scaled = profile_cam.scaled(w, h);
+    let model_cam = brown_from_colmap(cam)
+        .map_err(|e| SiteError::Input(format!("the model's camera: {e}")))?
+        .camera;
+    // COLMAP's undistorter (and `pipemeasure undistort`) write pinhole cameras; a model with a
+    // distortion model (even one estimated as zero, or never refined) has the frames as recorded.
+    let pinhole = matches!(cam.model, ColmapModel::Pinhole | ColmapModel::SimplePinhole);
+    if !pinhole || model_cam.intrinsics.has_distortion() {
+        return Ok((scaled.intrinsics, false));
+    }
+    let rel = (model_cam.intrinsics.c / scaled.intrinsics.c - 1.0).abs();
+    if rel > 0.05 {
+        return Err(SiteError::Input(format!(
+            "the model's pinhole camera has a principal distance of {:.1} px, device {device} {:.1} px at {w}x{h} ({:.0} % apart): these frames were not undistorted with this device's profile",
+            model_cam.intrinsics.c,
+            scaled.intrinsics.c,
+            100.0 * rel
+        )));
+    }
+    Ok((model_cam.intrinsics, true))
+}
+
+/// Checks that every frame has the model's size.
+fn check_frame_sizes(frames: &Path, names: &[String], size: (u32, u32)) -> Result<(), SiteError> {
+    for name in names {
+        let path = frames.join(name);
+        let (w, h) = image::image_dimensions(&path)
+            .map_err(|e| SiteError::Input(format!("frame {} of the model: {e}", path.display())))?;
+        if (w, h) != size {
+            return Err(SiteError::Input(format!(
+                "frame {} is {w}x{h} but the model's camera is {}x{}: the frames and the model do not belong together",
+                path.display(),
+                size.0,
+                size.1
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The targets' scale, with what was used.
+#[derive(Clone, Debug)]
+pub struct SiteScale {
+    /// The scale (and similarity) from the targets.
+    pub estimate: ScaleEstimate,
+    /// The TLS ids used, in the order of the estimate's indices.
+    pub tls_ids: Vec<String>,
+    /// Per reconstructed target, its views.
+    pub views: Vec<usize>,
+    /// The device.
+    pub device: String,
+    /// The model's folder.
+    pub sfm: PathBuf,
+    /// The TLS target list.
+    pub tls_targets: PathBuf,
+    /// Whether the frames were already undistorted.
+    pub undistorted_frames: bool,
+    /// The model.
+    pub model: Reconstruction,
+    /// The intrinsics the targets were observed with.
+    pub intrinsics: Intrinsics,
+    /// The poses re-adjusted to them.
+    pub poses: ConsistentPoses,
+}
+
+/// Scale from the targets: the profile's intrinsics, the model's poses re-adjusted to them, the
+/// targets detected (in parallel; `progress(frames)` once per frame done), matched and corrected, and the scale
+/// against the TLS targets.
+///
+/// # Errors
+///
+/// [`SiteError`] naming the input and step that failed.
+pub fn scale_from_targets(
+    request: &SiteRequest,
+    log: &dyn Fn(&str),
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<SiteScale, SiteError> {
+    let cloud = &request.cloud;
+    let Some(device) = request.device.as_deref() else {
+        return Err(SiteError::Input(
+            "--device NAME is needed to scale the cloud from the targets (or give --scale)".into(),
+        ));
+    };
+    let sfm = resolve(
+        request.sfm.as_ref(),
+        cloud,
+        &["sparse", "sparse/0"],
+        is_model,
+        "SfM model",
+        "--sfm",
+    )?;
+    let frames = resolve(
+        request.frames.as_ref(),
+        cloud,
+        &["images", "frames"],
+        Path::is_dir,
+        "frames folder",
+        "--frames",
+    )?;
+    let tls_path = resolve(
+        request.tls_targets.as_ref(),
+        cloud,
+        &["tls_targets.csv"],
+        Path::is_file,
+        "TLS target list",
+        "--tls-targets",
+    )?;
+    let mut tls = read_targets(&tls_path)?;
+    if !request.tls_ids.is_empty() {
+        for id in &request.tls_ids {
+            if !tls.iter().any(|t| &t.id == id) {
+                return Err(SiteError::Input(format!(
+                    "--tls-ids: target `{id}` is not in {} (its ids: {})",
+                    tls_path.display(),
+                    tls.iter()
+                        .map(|t| t.id.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )));
+            }
+        }
+        tls.retain(|t| request.tls_ids.contains(&t.id));
+    }
+    if tls.len() < 2 {
+        return Err(SiteError::Input(format!(
+            "{}: {} TLS target(s); the scale needs at least two",
+            tls_path.display(),
+            tls.len()
+        )));
+    }
+    let model = Reconstruction::read(&sfm)?;
+    if model.images.is_empty() {
+        return Err(SiteError::Input(format!(
+            "the model {} has no registered images",
+            sfm.display()
+        )));
+    }
+    let (profile_path, profile) = load_device(device)?;
+    let (intrinsics, undistorted) =
+        site_intrinsics(device, &profile_path, &profile.camera(), &model)?;
+    let size = model_image_size(&model)?;
+    let poses = consistent_poses(
+        &model,
+        &intrinsics,
+        &RefineConfig::default(),
+        &AdjustConfig::default(),
+    )
+    .map_err(|source| SiteError::Poses {
+        path: sfm.clone(),
+        source,
+    })?;
+    log(&format!(
+        "Algorithm 1: reprojection σ {:.2} px with the model's poses and {}, {:.2} px after re-adjusting the poses to it",
+        poses.sigma_before_px,
+        if undistorted {
+            "its pinhole camera"
+        } else {
+            "the profile's intrinsics"
+        },
+        poses.sigma_after_px
+    ));
+    let names: Vec<String> = poses.a1.frames.iter().map(|f| f.name.clone()).collect();
+    check_frame_sizes(&frames, &names, size)?;
+    let config = DetectConfig {
+        min_semi_minor_px: request.min_semi_minor_px,
+        ..DetectConfig::default()
+    };
+    let paths: Vec<PathBuf> = names.iter().map(|n| frames.join(n)).collect();
+    let total = paths.len();
+    let detected = detect_frame_files(&paths, &config, &|| progress(total))?;
+    let cameras = poses.cameras();
+    let targets = match_site_targets(
+        &cameras,
+        &poses.a1.pairs,
+        &detected,
+        size,
+        poses.a1.reprojection_sigma,
+        &MatchConfig::default(),
+    );
+    let reconstructed = targets.reconstructed();
+    log(&format!(
+        "{} frames, {} targets matched (Algorithms 1–3) with {}",
+        names.len(),
+        reconstructed.len(),
+        if undistorted {
+            "the model's pinhole camera (frames already undistorted)".to_string()
+        } else {
+            format!("device {device}'s profile")
+        }
+    ));
+    let points: Vec<Point3<f64>> = tls.iter().map(|t| t.position).collect();
+    let estimate =
+        estimate_scale(&reconstructed, &points, &ScaleConfig::default()).map_err(|source| {
+            SiteError::Scale {
+                path: tls_path.clone(),
+                source,
+            }
+        })?;
+    Ok(SiteScale {
+        views: reconstructed.iter().map(|t| t.views).collect(),
+        tls_ids: tls.into_iter().map(|t| t.id).collect(),
+        estimate,
+        device: device.to_string(),
+        sfm,
+        tls_targets: tls_path,
+        undistorted_frames: undistorted,
+        model,
+        intrinsics,
+        poses,
+    })
+}
+
+/// The dense cloud in the frame of the re-adjusted poses: each point projected through the
+/// model's own camera at the model's poses into the images `visibility` names (positions in
+/// `image_order`, the model's images file), and triangulated again from those pixels through
+/// `cameras` (the profile's intrinsics at the re-adjusted poses). The cloud COLMAP fused with
+/// its own camera carries that camera's errors; this is the same cloud as the profile sees it.
+/// Points with fewer than two usable views are dropped; returned with how many.
+///
+/// # Errors
+///
+/// [`SiteError::Input`] for an image index or id the model does not have.
+pub fn retriangulate_cloud(
+    points: &[Vector3<f64>],
+    visibility: &[Vec<u32>],
+    model: &Reconstruction,
+    image_order: &[ImageId],
+    cameras: &[(ImageId, FrameCamera)],
+) -> Result<(Vec<Vector3<f64>>, usize), SiteError> {
+    // Per position in the images file: the model's camera and pose, and the new camera.
+    let mut views = Vec::with_capacity(image_order.len());
+    for id in image_order {
+        let image = model.images.get(id).ok_or_else(|| {
+            SiteError::Input(format!(
+                "the images file names image {} twice or not at all",
+                id.0
+            ))
+        })?;
+        let cam = model
+            .cameras
+            .get(&image.camera_id)
+            .ok_or_else(|| SiteError::Input(format!("image {} has no camera", id.0)))?;
+        let original = brown_from_colmap(cam)
+            .map_err(|e| SiteError::Input(format!("the model's camera: {e}")))?
+            .camera
+            .intrinsics;
+        let new = cameras.iter().find(|(i, _)| i == id).map(|(_, c)| *c);
+        views.push((original, image.cam_from_world(), new));
+    }
+    let n_views = views.len();
+    let out: Vec<Option<Vector3<f64>>> = points
+        .par_iter()
+        .zip(visibility)
+        .map(|(x, vis)| {
+            let obs: Vec<Observation> = vis
+                .iter()
+                .filter_map(|&k| {
+                    let (original, pose, new) = views.get(k as usize)?;
+                    let new = new.as_ref()?;
+                    let uv = original.project(&(pose * Point3::from(*x)).coords)?;
+                    let xy = new.intrinsics.ideal_from_pixel(&uv).ok()?;
+                    Some(Observation::normalized(&new.cam_from_world, xy))
+                })
+                .collect();
+            if obs.len() < 2 {
+                return None;
+            }
+            triangulate(&obs).map(|p| p.coords)
+        })
+        .collect();
+    if let Some(bad) = visibility
+        .iter()
+        .flatten()
+        .find(|&&k| k as usize >= n_views)
+    {
+        return Err(SiteError::Input(format!(
+            "fused.ply.vis names image {bad} but the model has {n_views} images"
+        )));
+    }
+    let dropped = out.iter().filter(|p| p.is_none()).count();
+    Ok((out.into_iter().flatten().collect(), dropped))
+}
+
+/// The site measured: the pipe and, when a scan is given, its reference.
+#[derive(Clone, Debug)]
+pub struct SiteMeasurement {
+    /// The pipe.
+    pub pipe: PipeMeasurement,
+    /// The scale used.
+    pub scaling: Scaling,
+    /// The targets' scale, when it came from them.
+    pub targets: Option<SiteScale>,
+    /// The TLS scan's fit of the same pipe.
+    pub reference: Option<Reference>,
+    /// How the cloud was used.
+    pub cloud_source: CloudSource,
+    /// The report.
+    pub report: SiteReport,
+}
+
+/// Where the fitted points came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CloudSource {
+    /// The cloud as given (a metric cloud, a given scale, or no `fused.ply.vis`).
+    AsGiven,
+    /// Re-triangulated through the profile at the re-adjusted poses.
+    Retriangulated,
+}
+
+/// Measures the site: `points` is the cloud of `request.cloud`, `scan` the TLS scan's points
+/// (when given).
+///
+/// # Errors
+///
+/// [`SiteError`] naming the input and step that failed.
+pub fn measure_site(
+    request: &SiteRequest,
+    points: &[Vector3<f64>],
+    scan: Option<&[Vector3<f64>]>,
+    log: &dyn Fn(&str),
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<SiteMeasurement, SiteError> {
+    let (scaling, targets) = match request.scale {
+        Some(s) if s.is_finite() && s > 0.0 => (Scaling::Given(s), None),
+        Some(s) => {
+            return Err(SiteError::Input(format!(
+                "--scale {s}: must be a positive number"
+            )));
+        }
+        None => {
+            let t = scale_from_targets(request, log, progress)?;
+            (Scaling::Targets(t.estimate.clone()), Some(t))
+        }
+    };
+    let vis_path = {
+        let mut p = request.cloud.as_os_str().to_owned();
+        p.push(".vis");
+        PathBuf::from(p)
+    };
+    let (points, cloud_source) = match &targets {
+        Some(t) if vis_path.is_file() => {
+            let visibility = crate::io::vis::read(&vis_path, points.len())?;
+            let order = Reconstruction::image_file_order(&t.sfm)?;
+            let cameras: Vec<(ImageId, FrameCamera)> = t
+                .poses
+                .a1
+                .frames
+                .iter()
+                .map(|f| (f.image_id, f.camera))
+                .collect();
+            let (moved, dropped) =
+                retriangulate_cloud(points, &visibility, &t.model, &order, &cameras)?;
+            log(&format!(
+                "cloud re-triangulated through the profile at the re-adjusted poses ({} points, {dropped} without two usable views dropped; visibility from {})",
+                moved.len(),
+                vis_path.display()
+            ));
+            (moved, CloudSource::Retriangulated)
+        }
+        Some(_) => {
+            log(&format!(
+                "no {}: the cloud is used as fused, with the SfM program's camera and poses (it may carry that camera's errors)",
+                vis_path.display()
+            ));
+            (points.to_vec(), CloudSource::AsGiven)
+        }
+        None => (points.to_vec(), CloudSource::AsGiven),
+    };
+    let pipe = measure_pipe(
+        &points,
+        &scaling,
+        request.region.as_ref(),
+        &request.cylinder,
+    )
+    .map_err(|source| SiteError::Fit {
+        path: request.cloud.clone(),
+        source,
+    })?;
+    let reference = match (&request.tls_scan, scan) {
+        (Some(path), Some(scan)) => Some(
+            reference_fit(scan, &pipe, scaling.in_tls_frame(), &request.cylinder).map_err(
+                |source| SiteError::Fit {
+                    path: path.clone(),
+                    source,
+                },
+            )?,
+        ),
+        _ => None,
+    };
+    let report = report(
+        &request.cloud,
+        &pipe,
+        &scaling,
+        targets.as_ref(),
+        reference.as_ref(),
+        cloud_source,
+    );
+    Ok(SiteMeasurement {
+        pipe,
+        scaling,
+        targets,
+        reference,
+        cloud_source,
+        report,
+    })
+}
+
+/// A target used for the scale.
+#[derive(Clone, Debug, Serialize)]
+pub struct ScaleTargetOut {
+    /// Its TLS id.
+    pub tls_id: String,
+    /// Its views.
+    pub views: usize,
+    /// Distance to the TLS target after the similarity (m), if there is one.
+    pub residual_m: Option<f64>,
+}
+
+/// The pipe's axis.
+#[derive(Clone, Debug, Serialize)]
+pub struct AxisOut {
+    /// A point of the axis.
+    pub point: [f64; 3],
+    /// Unit direction.
+    pub direction: [f64; 3],
+}
+
+/// The main command's report (`measurement.json`, schema `pipemeasure.measurement/1`).
+#[derive(Clone, Debug, Serialize)]
+pub struct SiteReport {
+    /// Schema name.
+    pub schema: &'static str,
+    /// The cloud.
+    pub cloud: String,
+    /// How the cloud was used: `as_given` or `retriangulated`.
+    pub cloud_source: CloudSource,
+    /// The device.
+    pub device: Option<String>,
+    /// The model.
+    pub sfm: Option<String>,
+    /// The TLS list.
+    pub tls_targets: Option<String>,
+    /// Whether the frames were undistorted.
+    pub frames_undistorted: Option<bool>,
+    /// Algorithm 1's reprojection σ with the model's poses and the profile (px).
+    pub reprojection_sigma_before_px: Option<f64>,
+    /// The same after the poses were re-adjusted to the profile (px).
+    pub reprojection_sigma_after_px: Option<f64>,
+    /// Radius (m).
+    pub radius_m: f64,
+    /// Combined σ: the fit's and the scale's.
+    pub radius_std_m: f64,
+    /// The fit's σ.
+    pub fit_radius_std_m: f64,
+    /// RMSE of the inliers (m).
+    pub rmse_m: f64,
+    /// Inliers.
+    pub inliers: usize,
+    /// Axis.
+    pub axis: AxisOut,
+    /// `tls` when the cloud was moved into the TLS frame by the targets' similarity, `scaled`
+    /// when only scaled.
+    pub frame: &'static str,
+    /// Scale.
+    pub scale: f64,
+    /// Its σ.
+    pub scale_std: f64,
+    /// `given`, `two targets` (paper) or `similarity`.
+    pub scale_method: &'static str,
+    /// The targets of the scale.
+    pub scale_targets: Vec<ScaleTargetOut>,
+    /// The paper's two-target scale.
+    pub two_target_scale: Option<f64>,
+    /// Its two TLS ids.
+    pub two_target_ids: Option<[String; 2]>,
+    /// The similarity's scale.
+    pub similarity_scale: Option<f64>,
+    /// Its σ.
+    pub similarity_scale_std: Option<f64>,
+    /// RMS of the similarity's residuals (m).
+    pub similarity_rms_m: Option<f64>,
+    /// Whether the two-target association was assumed.
+    pub association_assumed: Option<bool>,
+    /// The reference radius (m).
+    pub reference_radius_m: Option<f64>,
+    /// Its σ.
+    pub reference_radius_std_m: Option<f64>,
+    /// Its RMSE.
+    pub reference_rmse_m: Option<f64>,
+    /// Its inliers.
+    pub reference_inliers: Option<usize>,
+    /// Radius minus the reference radius (m).
+    pub accuracy_m: Option<f64>,
+}
+
+fn report(
+    cloud: &Path,
+    m: &PipeMeasurement,
+    scaling: &Scaling,
+    targets: Option<&SiteScale>,
+    reference: Option<&Reference>,
+    cloud_source: CloudSource,
+) -> SiteReport {
+    let c = &m.fit.cylinder;
+    let est = targets.map(|t| &t.estimate);
+    let scale_targets = targets
+        .map(|t| {
+            t.estimate
+                .associated
+                .iter()
+                .enumerate()
+                .map(|(k, &(r, i))| ScaleTargetOut {
+                    tls_id: t.tls_ids[i].clone(),
+                    views: t.views[r],
+                    residual_m: t
+                        .estimate
+                        .similarity
+                        .as_ref()
+                        .and_then(|s| s.residuals_m.get(k).copied()),
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    SiteReport {
+        schema: "pipemeasure.measurement/1",
+        cloud: cloud.display().to_string(),
+        cloud_source,
+        device: targets.map(|t| t.device.clone()),
+        sfm: targets.map(|t| t.sfm.display().to_string()),
+        tls_targets: targets.map(|t| t.tls_targets.display().to_string()),
+        frames_undistorted: targets.map(|t| t.undistorted_frames),
+        reprojection_sigma_before_px: targets.map(|t| t.poses.sigma_before_px),
+        reprojection_sigma_after_px: targets.map(|t| t.poses.sigma_after_px),
+        radius_m: c.radius,
+        radius_std_m: m.radius_std,
+        fit_radius_std_m: m.fit.radius_std,
+        rmse_m: m.fit.rmse,
+        inliers: m.fit.inliers,
+        axis: AxisOut {
+            point: c.point.into(),
+            direction: c.direction.into(),
+        },
+        frame: if scaling.in_tls_frame() {
+            "tls"
+        } else {
+            "scaled"
+        },
+        scale: m.scale.0,
+        scale_std: m.scale.1,
+        scale_method: match (scaling, est.and_then(|e| e.similarity.as_ref())) {
+            (Scaling::Given(_), _) => "given",
+            (_, Some(_)) => "similarity",
+            _ => "two targets",
+        },
+        scale_targets,
+        two_target_scale: est.map(|e| e.two_target.scale),
+        two_target_ids: targets.map(|t| t.estimate.two_target.tls.map(|i| t.tls_ids[i].clone())),
+        similarity_scale: est.and_then(|e| e.similarity.as_ref().map(|s| s.scale)),
+        similarity_scale_std: est.and_then(|e| e.similarity.as_ref().map(|s| s.scale_std)),
+        similarity_rms_m: est.and_then(|e| e.similarity.as_ref().map(|s| s.rms_m)),
+        association_assumed: est.map(|e| e.assumed),
+        reference_radius_m: reference.map(|r| r.fit.cylinder.radius),
+        reference_radius_std_m: reference.map(|r| r.fit.radius_std),
+        reference_rmse_m: reference.map(|r| r.fit.rmse),
+        reference_inliers: reference.map(|r| r.fit.inliers),
+        accuracy_m: reference.map(|r| r.accuracy),
+    }
+}
