@@ -773,26 +773,17 @@ fn target_problem(
     })
 }
 
-/// The intrinsics Algorithm 1 step 4 adjusts with the poses in a calibration.
-pub const FEATURE_ADJUSTMENT_TERMS: [Term; 5] = [Term::C, Term::U0, Term::V0, Term::K1, Term::K2];
-
-/// Algorithm 1 step 4: the feature tracks' inlier observations adjusted with the poses, the
-/// points and the intrinsics `free` (the others held at the cameras' values; Huber loss at 3σ of
-/// Algorithm 1's reprojection σ), free network. With `free` empty it is the site's adjustment
-/// with a device profile's intrinsics fixed; with c, k1, k2 it is COLMAP's in-situ radial
-/// self-calibration.
+/// The inlier feature tracks of three or more views as an adjustment problem at the cameras'
+/// poses and intrinsics (all free): Algorithm 1 step 4's problem.
 ///
 /// # Errors
 ///
-/// [`CalibrateError`] for fewer than seven tracks with three inlier views, or a failed
-/// adjustment.
-pub fn adjust_feature_tracks(
+/// [`CalibrateError`] for fewer than seven tracks with three inlier views.
+pub fn feature_problem(
     model: &Reconstruction,
     a1: &Algorithm1,
     cameras: &[FrameCamera],
-    free: &[Term],
-    adjust: &AdjustConfig,
-) -> Result<(AdjustSummary, Intrinsics, Vec<Rigid3>), CalibrateError> {
+) -> Result<Problem<BrownModel>, CalibrateError> {
     let index_of: HashMap<ImageId, usize> = a1
         .frames
         .iter()
@@ -841,7 +832,7 @@ pub fn adjust_feature_tracks(
         });
     }
     let intrinsics = cameras[0].intrinsics;
-    let mut problem = Problem::new(
+    let problem = Problem::new(
         BrownModel,
         cameras.iter().map(|c| c.cam_from_world).collect(),
         Vec::new(),
@@ -849,6 +840,30 @@ pub fn adjust_feature_tracks(
         points,
         observations,
     )?;
+    Ok(problem)
+}
+
+/// The intrinsics Algorithm 1 step 4 adjusts with the poses in a calibration.
+pub const FEATURE_ADJUSTMENT_TERMS: [Term; 5] = [Term::C, Term::U0, Term::V0, Term::K1, Term::K2];
+
+/// Algorithm 1 step 4: the feature tracks' inlier observations adjusted with the poses, the
+/// points and the intrinsics `free` (the others held at the cameras' values; Huber loss at 3σ of
+/// Algorithm 1's reprojection σ), free network. With `free` empty it is the site's adjustment
+/// with a device profile's intrinsics fixed; with c, k1, k2 it is COLMAP's in-situ radial
+/// self-calibration.
+///
+/// # Errors
+///
+/// [`CalibrateError`] for fewer than seven tracks with three inlier views, or a failed
+/// adjustment.
+pub fn adjust_feature_tracks(
+    model: &Reconstruction,
+    a1: &Algorithm1,
+    cameras: &[FrameCamera],
+    free: &[Term],
+    adjust: &AdjustConfig,
+) -> Result<(AdjustSummary, Intrinsics, Vec<Rigid3>), CalibrateError> {
+    let mut problem = feature_problem(model, a1, cameras)?;
     problem.fixed.global = Term::ALL
         .iter()
         .filter(|t| !free.contains(t))

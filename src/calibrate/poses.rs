@@ -12,7 +12,7 @@
 //! refresh_pairs`]): on near-planar scenes the features' robust `F` is ill-conditioned, the
 //! poses' is not.
 
-use super::pipeline::{CalibrateError, adjust_feature_tracks, refresh_pairs};
+use super::pipeline::{CalibrateError, adjust_feature_tracks, feature_problem, refresh_pairs};
 use super::refine::{Algorithm1, RefineConfig, algorithm1, retriangulate};
 use super::views::FrameCamera;
 use crate::adjust::{AdjustConfig, AdjustSummary};
@@ -31,6 +31,11 @@ pub struct ConsistentPoses {
     pub sigma_after_px: f64,
     /// The last adjustment's summary.
     pub summary: AdjustSummary,
+    /// Covariance (σ0²·Q, minimum trace over the poses) of the frames' pose steps `(δω, δt)`
+    /// ([`crate::geometry::pose::retract`]), all frames jointly (6 rows per frame, image-id
+    /// order), from the feature tracks' inlier observations with the intrinsics fixed; `None`
+    /// when the network's precision cannot be computed.
+    pub pose_covariance: Option<nalgebra::DMatrix<f64>>,
 }
 
 impl ConsistentPoses {
@@ -60,7 +65,9 @@ pub fn consistent_poses(
     let summary = round(model, &mut a1, refine, adjust)?;
     let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
     refresh_pairs(&mut a1.pairs, &cameras);
+    let pose_covariance = pose_covariance(model, &a1, &cameras);
     Ok(ConsistentPoses {
+        pose_covariance,
         sigma_before_px,
         sigma_after_px: a1.reprojection_sigma,
         a1,
@@ -83,4 +90,28 @@ fn round(
     }
     retriangulate(model, a1, refine);
     Ok(summary)
+}
+
+/// The poses' covariance at the re-adjusted cameras ([`ConsistentPoses::pose_covariance`]):
+/// the inlier tracks' problem with every intrinsic fixed, its reduced covariance without the
+/// (pinned) intrinsics' rows.
+fn pose_covariance(
+    model: &Reconstruction,
+    a1: &Algorithm1,
+    cameras: &[FrameCamera],
+) -> Option<nalgebra::DMatrix<f64>> {
+    let mut problem = feature_problem(model, a1, cameras).ok()?;
+    problem.fixed.global = (0..problem.global.len()).collect();
+    let precision = crate::adjust::precision(
+        &problem,
+        crate::adjust::PrecisionRequest {
+            poses: true,
+            points: false,
+        },
+    )
+    .ok()?;
+    let reduced = precision.reduced_covariance?;
+    let dg = problem.global.len();
+    let n = reduced.nrows().checked_sub(dg)?;
+    (n == 6 * cameras.len()).then(|| reduced.view((dg, dg), (n, n)).into_owned())
 }

@@ -11,7 +11,8 @@ use nalgebra::Vector2;
 use pipemeasure::adjust::correlation;
 use pipemeasure::calibrate::check_points::{CheckPointReport, check_points};
 use pipemeasure::calibrate::checks::{
-    DistortionCheck, ImageMap, check_distortion, projection_difference, projection_uncertainty,
+    DistortionCheck, ImageMap, check_distortion, projection_difference,
+    projection_difference_rotated, projection_uncertainty,
 };
 use pipemeasure::calibrate::network::colmap_network;
 use pipemeasure::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, calibrate};
@@ -152,9 +153,22 @@ fn check_frames(model: &Reconstruction, frames: &Path) -> Result<Vec<String>> {
 #[derive(Serialize)]
 struct CrossValidation {
     frames: [usize; 2],
+    /// The halves' projections apart, as they are (px).
     max_px: f64,
     rms_px: f64,
     map: ImageMap,
+    /// After compensating the rotation between the halves' models (mrcal): what the data can
+    /// tell apart (px).
+    rotated_max_px: f64,
+    rotated_rms_px: f64,
+    rotation_deg: f64,
+    /// The RMS difference the halves' own σ predict, `sqrt(rms σ_a² + rms σ_b²)` (px).
+    predicted_rms_px: f64,
+    /// Observed over predicted; above 1 the σ are too small for these frames.
+    ratio: f64,
+    /// The factor the profile's σ (and covariance, squared) were multiplied by: the ratio when
+    /// above 1, else 1.
+    sigma_scaled_by: f64,
 }
 
 #[derive(Serialize)]
@@ -517,7 +531,6 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     };
     let cal = calibrate_model(&model, &detections, size, &config, &log)?;
     let check = check_distortion(&cal.intrinsics, size);
-    let uncertainty = projection_uncertainty(&cal.intrinsics, &cal.covariance, size);
     let mut warnings = cal.warnings.clone();
     if !check.ok {
         warnings.push(format!(
@@ -553,15 +566,44 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             );
         }
         let map = projection_difference(&models[0].intrinsics, &models[1].intrinsics, size);
+        let rotated =
+            projection_difference_rotated(&models[0].intrinsics, &models[1].intrinsics, size);
+        let sigma_rms =
+            |m: &Calibration| projection_uncertainty(&m.intrinsics, &m.covariance, size).rms;
+        let predicted = sigma_rms(&models[0]).hypot(sigma_rms(&models[1]));
+        let ratio = rotated.map.rms / predicted.max(f64::MIN_POSITIVE);
         Some(CrossValidation {
             frames: [models[0].frame_names.len(), models[1].frame_names.len()],
             max_px: map.max,
             rms_px: map.rms,
             map,
+            rotated_max_px: rotated.map.max,
+            rotated_rms_px: rotated.map.rms,
+            rotation_deg: rotated.rotation_deg,
+            predicted_rms_px: predicted,
+            ratio,
+            sigma_scaled_by: ratio.max(1.0),
         })
     } else {
         None
     };
+    // Where the halves disagree by more than their σ say, the σ are too small for these frames
+    // (correlated detection errors, unmodelled effects): the reported σ follow the data.
+    let mut cal = cal;
+    if let Some(cv) = &cross
+        && cv.sigma_scaled_by > 1.0
+    {
+        let k = cv.sigma_scaled_by;
+        for s in &mut cal.std_dev {
+            *s *= k;
+        }
+        cal.covariance *= k * k;
+        warnings.push(format!(
+            "cross-validation: the halves' projections differ by {:.3} px RMS after the rotation between them, {k:.2} times what their σ predict ({:.3} px); the profile's σ are multiplied by {k:.2}",
+            cv.rotated_rms_px, cv.predicted_rms_px
+        ));
+    }
+    let uncertainty = projection_uncertainty(&cal.intrinsics, &cal.covariance, size);
     let model_name = args.sfm.as_ref().map_or_else(
         || "colmap (run by pipemeasure)".to_string(),
         |p| p.display().to_string(),
@@ -643,11 +685,16 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     );
     if let Some(cv) = &cross {
         outln!(
-            "cross-validation ({} / {} frames): the halves' projections differ by {:.4} px at most, {:.4} px RMS",
+            "cross-validation ({} / {} frames): the halves' projections differ by {:.4} px at most, {:.4} px RMS; after the rotation between them ({:.4}°) {:.4} px at most, {:.4} px RMS, {:.2} × the {:.4} px their σ predict",
             cv.frames[0],
             cv.frames[1],
             cv.max_px,
-            cv.rms_px
+            cv.rms_px,
+            cv.rotation_deg,
+            cv.rotated_max_px,
+            cv.rotated_rms_px,
+            cv.ratio,
+            cv.predicted_rms_px
         );
     }
     for w in &warnings {

@@ -149,10 +149,15 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
 
 fn print_summary(out: &SiteReport, args: &Args) -> Result<()> {
     outln!(
-        "pipe radius {:.2} ± {:.2} mm (fit ± {:.2} mm, scale included), RMSE {:.2} mm, {} inliers",
+        "pipe radius {:.2} ± {:.2} mm (fit ± {:.2} mm, {}), RMSE {:.2} mm, {} inliers",
         out.radius_m * 1e3,
         out.radius_std_m * 1e3,
         out.fit_radius_std_m * 1e3,
+        out.pose_radius_std_m
+            .map_or("scale included".to_string(), |p| format!(
+                "poses ± {:.2} mm, scale included",
+                p * 1e3
+            )),
         out.rmse_m * 1e3,
         out.inliers
     );

@@ -12,7 +12,7 @@
 
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Point3, Vector3};
+use nalgebra::{DMatrix, Point3, Vector2, Vector3, Vector6};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -256,6 +256,9 @@ pub struct SiteScale {
     pub intrinsics: Intrinsics,
     /// The poses re-adjusted to them.
     pub poses: ConsistentPoses,
+    /// Per reconstructed target (the estimate's indices), its views: frame index and the
+    /// Algorithm-3-corrected centre in undistorted pixels.
+    pub tracks: Vec<Vec<(usize, Vector2<f64>)>>,
 }
 
 /// Scale from the targets: the profile's intrinsics, the model's poses re-adjusted to them, the
@@ -391,7 +394,14 @@ pub fn scale_from_targets(
                 source,
             }
         })?;
+    let tracks = targets
+        .matching
+        .tracks
+        .iter()
+        .map(|t| t.views.iter().map(|v| (v.frame, v.best_centre())).collect())
+        .collect();
     Ok(SiteScale {
+        tracks,
         views: reconstructed.iter().map(|t| t.views).collect(),
         tls_ids: tls.into_iter().map(|t| t.id).collect(),
         estimate,
@@ -410,7 +420,8 @@ pub fn scale_from_targets(
 /// `image_order`, the model's images file), and triangulated again from those pixels through
 /// `cameras` (the profile's intrinsics at the re-adjusted poses). The cloud COLMAP fused with
 /// its own camera carries that camera's errors; this is the same cloud as the profile sees it.
-/// Points with fewer than two usable views are dropped; returned with how many.
+/// Points with fewer than two usable views are dropped; returned with how many, and per kept
+/// point its views (index into `cameras`, ideal image coordinates under the new intrinsics).
 ///
 /// # Errors
 ///
@@ -421,7 +432,7 @@ pub fn retriangulate_cloud(
     model: &Reconstruction,
     image_order: &[ImageId],
     cameras: &[(ImageId, FrameCamera)],
-) -> Result<(Vec<Vector3<f64>>, usize), SiteError> {
+) -> Result<RetriangulatedCloud, SiteError> {
     // Per position in the images file: the model's camera and pose, and the new camera.
     let mut views = Vec::with_capacity(image_order.len());
     for id in image_order {
@@ -439,28 +450,27 @@ pub fn retriangulate_cloud(
             .map_err(|e| SiteError::Input(format!("the model's camera: {e}")))?
             .camera
             .intrinsics;
-        let new = cameras.iter().find(|(i, _)| i == id).map(|(_, c)| *c);
+        let new = cameras.iter().position(|(i, _)| i == id);
         views.push((original, image.cam_from_world(), new));
     }
     let n_views = views.len();
-    let out: Vec<Option<Vector3<f64>>> = points
+    type Views = Vec<(usize, Vector2<f64>)>;
+    let out: Vec<Option<(Vector3<f64>, Views)>> = points
         .par_iter()
         .zip(visibility)
         .map(|(x, vis)| {
-            let obs: Vec<Observation> = vis
+            let rays: Views = vis
                 .iter()
                 .filter_map(|&k| {
                     let (original, pose, new) = views.get(k as usize)?;
-                    let new = new.as_ref()?;
+                    let j = (*new)?;
                     let uv = original.project(&(pose * Point3::from(*x)).coords)?;
-                    let xy = new.intrinsics.ideal_from_pixel(&uv).ok()?;
-                    Some(Observation::normalized(&new.cam_from_world, xy))
+                    let xy = cameras[j].1.intrinsics.ideal_from_pixel(&uv).ok()?;
+                    Some((j, xy))
                 })
                 .collect();
-            if obs.len() < 2 {
-                return None;
-            }
-            triangulate(&obs).map(|p| p.coords)
+            let p = triangulate_rays(&rays, &|j| cameras[j].1.cam_from_world)?;
+            Some((p, rays))
         })
         .collect();
     if let Some(bad) = visibility
@@ -473,7 +483,39 @@ pub fn retriangulate_cloud(
         )));
     }
     let dropped = out.iter().filter(|p| p.is_none()).count();
-    Ok((out.into_iter().flatten().collect(), dropped))
+    let (points, rays) = out.into_iter().flatten().unzip();
+    Ok(RetriangulatedCloud {
+        points,
+        rays,
+        dropped,
+    })
+}
+
+/// The cloud re-triangulated by [`retriangulate_cloud`].
+#[derive(Clone, Debug, Default)]
+pub struct RetriangulatedCloud {
+    /// The points.
+    pub points: Vec<Vector3<f64>>,
+    /// Per point its views: camera index and ideal image coordinates.
+    pub rays: Vec<Vec<(usize, Vector2<f64>)>>,
+    /// Points dropped for fewer than two usable views.
+    pub dropped: usize,
+}
+
+/// A point triangulated from ideal image coordinates in the cameras `pose(j)`; `None` for
+/// fewer than two views or a degenerate configuration.
+fn triangulate_rays(
+    rays: &[(usize, Vector2<f64>)],
+    pose: &dyn Fn(usize) -> crate::geometry::Rigid3,
+) -> Option<Vector3<f64>> {
+    if rays.len() < 2 {
+        return None;
+    }
+    let obs: Vec<Observation> = rays
+        .iter()
+        .map(|&(j, xy)| Observation::normalized(&pose(j), xy))
+        .collect();
+    triangulate(&obs).map(|p| p.coords)
 }
 
 /// The site measured: the pipe and, when a scan is given, its reference.
@@ -544,26 +586,26 @@ pub fn measure_site(
                 .iter()
                 .map(|f| (f.image_id, f.camera))
                 .collect();
-            let (moved, dropped) =
-                retriangulate_cloud(points, &visibility, &t.model, &order, &cameras)?;
+            let cloud = retriangulate_cloud(points, &visibility, &t.model, &order, &cameras)?;
             log(&format!(
-                "cloud re-triangulated through the profile at the re-adjusted poses ({} points, {dropped} without two usable views dropped; visibility from {})",
-                moved.len(),
+                "cloud re-triangulated through the profile at the re-adjusted poses ({} points, {} without two usable views dropped; visibility from {})",
+                cloud.points.len(),
+                cloud.dropped,
                 vis_path.display()
             ));
-            (moved, CloudSource::Retriangulated)
+            (cloud, CloudSource::Retriangulated)
         }
         Some(_) => {
             log(&format!(
                 "no {}: the cloud is used as fused, with the SfM program's camera and poses (it may carry that camera's errors)",
                 vis_path.display()
             ));
-            (points.to_vec(), CloudSource::AsGiven)
+            (as_given(points), CloudSource::AsGiven)
         }
-        None => (points.to_vec(), CloudSource::AsGiven),
+        None => (as_given(points), CloudSource::AsGiven),
     };
-    let pipe = measure_pipe(
-        &points,
+    let mut pipe = measure_pipe(
+        &points.points,
         &scaling,
         request.region.as_ref(),
         &request.cylinder,
@@ -572,6 +614,21 @@ pub fn measure_site(
         path: request.cloud.clone(),
         source,
     })?;
+    // What the poses' uncertainty does to the radius (the targets and the cloud move with them).
+    let pose_radius_std_m = match (&targets, cloud_source) {
+        (Some(t), CloudSource::Retriangulated) => {
+            let s = pose_radius_std(t, &points, &pipe, request);
+            if let Some(s) = s {
+                log(&format!(
+                    "the poses' uncertainty contributes ±{:.3} mm to the radius ({POSE_SAMPLES} samples of the poses' covariance)",
+                    s * 1e3
+                ));
+                pipe.radius_std = pipe.radius_std.hypot(s);
+            }
+            s
+        }
+        _ => None,
+    };
     let reference = match (&request.tls_scan, scan) {
         (Some(path), Some(scan)) => Some(
             reference_fit(scan, &pipe, scaling.in_tls_frame(), &request.cylinder).map_err(
@@ -583,7 +640,7 @@ pub fn measure_site(
         ),
         _ => None,
     };
-    let report = report(
+    let mut report = report(
         &request.cloud,
         &pipe,
         &scaling,
@@ -591,6 +648,7 @@ pub fn measure_site(
         reference.as_ref(),
         cloud_source,
     );
+    report.pose_radius_std_m = pose_radius_std_m;
     Ok(SiteMeasurement {
         pipe,
         scaling,
@@ -644,8 +702,10 @@ pub struct SiteReport {
     pub reprojection_sigma_after_px: Option<f64>,
     /// Radius (m).
     pub radius_m: f64,
-    /// Combined σ: the fit's and the scale's.
+    /// Combined σ: the fit's, the scale's and the poses' (when the cloud was re-triangulated).
     pub radius_std_m: f64,
+    /// The poses' part of it (Monte Carlo over their covariance), when known.
+    pub pose_radius_std_m: Option<f64>,
     /// The fit's σ.
     pub fit_radius_std_m: f64,
     /// RMSE of the inliers (m).
@@ -729,6 +789,7 @@ fn report(
         reprojection_sigma_after_px: targets.map(|t| t.poses.sigma_after_px),
         radius_m: c.radius,
         radius_std_m: m.radius_std,
+        pose_radius_std_m: None,
         fit_radius_std_m: m.fit.radius_std,
         rmse_m: m.fit.rmse,
         inliers: m.fit.inliers,
@@ -760,5 +821,167 @@ fn report(
         reference_rmse_m: reference.map(|r| r.fit.rmse),
         reference_inliers: reference.map(|r| r.fit.inliers),
         accuracy_m: reference.map(|r| r.accuracy),
+    }
+}
+
+/// The cloud as given, with no views.
+fn as_given(points: &[Vector3<f64>]) -> RetriangulatedCloud {
+    RetriangulatedCloud {
+        points: points.to_vec(),
+        rays: Vec::new(),
+        dropped: 0,
+    }
+}
+
+/// Samples of the poses' covariance in [`pose_radius_std`].
+pub const POSE_SAMPLES: usize = 32;
+
+/// The radius's σ from the poses' uncertainty, by Monte Carlo: `POSE_SAMPLES` draws of all the
+/// poses from their joint covariance ([`ConsistentPoses::pose_covariance`]); per draw the
+/// targets and the pipe's points (those within 3 RMSE of the fitted cylinder) triangulated
+/// again, the scale or similarity re-estimated on the same association, and the cylinder
+/// fitted again. Seeded: the same input gives the same σ. `None` without a covariance.
+fn pose_radius_std(
+    t: &SiteScale,
+    cloud: &RetriangulatedCloud,
+    pipe: &PipeMeasurement,
+    request: &SiteRequest,
+) -> Option<f64> {
+    use rand::SeedableRng;
+    let cov = t.poses.pose_covariance.as_ref()?;
+    let draw = covariance_sampler(cov)?;
+    let nominal = Scaling::Targets(t.estimate.clone()).transform();
+    let c = &pipe.fit.cylinder;
+    let band = 3.0 * pipe.fit.rmse.max(1e-6);
+    let near: Vec<usize> = (0..cloud.points.len())
+        .filter(|&k| {
+            let p = nominal.apply(&cloud.points[k]);
+            request.region.as_ref().is_none_or(|r| r.contains(&p)) && c.residual(&p).abs() < band
+        })
+        .collect();
+    if near.len() < 50 {
+        return None;
+    }
+    let frames = &t.poses.a1.frames;
+    let tls = read_targets(&t.tls_targets).ok()?;
+    let tls: Vec<Point3<f64>> = t
+        .tls_ids
+        .iter()
+        .filter_map(|id| tls.iter().find(|x| &x.id == id).map(|x| x.position))
+        .collect();
+    let radii: Vec<f64> = (0..POSE_SAMPLES)
+        .into_par_iter()
+        .filter_map(|s| {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5EED_0000 + s as u64);
+            let delta = draw(&mut rng);
+            let poses: Vec<crate::geometry::Rigid3> = frames
+                .iter()
+                .enumerate()
+                .map(|(j, f)| {
+                    let d = Vector6::from_fn(|r, _| delta[6 * j + r]);
+                    crate::geometry::pose::retract(&f.camera.cam_from_world, &d)
+                })
+                .collect();
+            let targets: Vec<Option<Point3<f64>>> = t
+                .tracks
+                .iter()
+                .map(|views| {
+                    let obs: Vec<Observation> = views
+                        .iter()
+                        .map(|&(f, uv)| Observation {
+                            p: FrameCamera {
+                                intrinsics: t.intrinsics,
+                                cam_from_world: poses[f],
+                            }
+                            .p(),
+                            xy: uv,
+                        })
+                        .collect();
+                    triangulate(&obs)
+                })
+                .collect();
+            let transform = resampled_transform(&t.estimate, &targets, &tls)?;
+            let points: Vec<Vector3<f64>> = near
+                .iter()
+                .filter_map(|&k| {
+                    triangulate_rays(&cloud.rays[k], &|j| poses[j]).map(|p| transform.apply(&p))
+                })
+                .collect();
+            super::pipe::fit_points(&points, &request.cylinder)
+                .ok()
+                .map(|f| f.cylinder.radius)
+        })
+        .collect();
+    if radii.len() < POSE_SAMPLES / 2 {
+        return None;
+    }
+    let mean = radii.iter().sum::<f64>() / radii.len() as f64;
+    let var = radii.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / (radii.len() - 1) as f64;
+    Some(var.sqrt())
+}
+
+/// A sampler of `N(0, cov)`: `V·√Λ·z` from the symmetric eigen-decomposition (the
+/// free network's covariance is singular along its datum; negative round-off clamped).
+#[allow(clippy::type_complexity)]
+fn covariance_sampler(
+    cov: &DMatrix<f64>,
+) -> Option<impl Fn(&mut rand_chacha::ChaCha8Rng) -> nalgebra::DVector<f64>> {
+    let n = cov.nrows();
+    if n == 0 || cov.ncols() != n || cov.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let eigen = nalgebra::SymmetricEigen::new(cov.clone());
+    let scale: Vec<f64> = eigen
+        .eigenvalues
+        .iter()
+        .map(|l| l.max(0.0).sqrt())
+        .collect();
+    let vectors = eigen.eigenvectors;
+    Some(move |rng: &mut rand_chacha::ChaCha8Rng| {
+        let z = nalgebra::DVector::from_fn(n, |k, _| scale[k] * gaussian(rng));
+        &vectors * z
+    })
+}
+
+/// A standard normal deviate (Box–Muller).
+fn gaussian(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
+    use rand::Rng;
+    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
+    let u2: f64 = rng.random();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// The scale (or similarity) of `estimate` re-estimated on the same association from moved
+/// targets.
+fn resampled_transform(
+    estimate: &ScaleEstimate,
+    targets: &[Option<Point3<f64>>],
+    tls: &[Point3<f64>],
+) -> Option<crate::adjust::Similarity> {
+    match &estimate.similarity {
+        Some(_) => {
+            let origin = tls.first()?.coords;
+            let (from, to): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = estimate
+                .associated
+                .iter()
+                .filter_map(|&(r, k)| {
+                    Some((
+                        targets.get(r)?.as_ref()?.coords,
+                        tls.get(k)?.coords - origin,
+                    ))
+                })
+                .unzip();
+            let mut sim = crate::adjust::similarity_from_points(&from, &to)?;
+            sim.translation += origin;
+            Some(sim)
+        }
+        None => {
+            let [a, b] = estimate.two_target.reconstructed;
+            let d = (targets.get(a)?.as_ref()? - targets.get(b)?.as_ref()?).norm();
+            (d > 0.0).then(|| crate::adjust::Similarity {
+                scale: estimate.two_target.tls_distance / d,
+                ..crate::adjust::Similarity::identity()
+            })
+        }
     }
 }
