@@ -5,6 +5,8 @@
 //! with `CI=true` a missing COLMAP is a failure, so CI can never pass without running it.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -16,22 +18,6 @@ use pipemeasure::io::colmap::{
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-
-/// Whether colmap is available; panics under CI when it is not.
-fn colmap_available() -> bool {
-    let found = Command::new("colmap")
-        .arg("help")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !found {
-        assert!(
-            std::env::var("CI").map(|v| v != "true").unwrap_or(true),
-            "CI=true but `colmap` is not on PATH: .ci/run must install it (apt-get install -y colmap)"
-        );
-        eprintln!("skipping: colmap is not installed (apt-get install -y colmap)");
-    }
-    found
-}
 
 fn colmap(args: &[&str]) {
     let out = Command::new("colmap").args(args).output().unwrap();
@@ -131,7 +117,7 @@ fn path_str(p: &Path) -> &str {
 
 #[test]
 fn colmap_converts_our_text_model_to_binary_that_reads_back_identically() {
-    if !colmap_available() {
+    if !common::colmap_available() {
         return;
     }
     let model = random_model(11);
@@ -172,7 +158,7 @@ fn colmap_converts_our_text_model_to_binary_that_reads_back_identically() {
 
 #[test]
 fn we_read_binary_and_text_models_written_by_colmap() {
-    if !colmap_available() {
+    if !common::colmap_available() {
         return;
     }
     let model = random_model(12);
@@ -232,7 +218,7 @@ fn we_read_binary_and_text_models_written_by_colmap() {
 
 #[test]
 fn colmap_model_analyzer_accepts_our_model() {
-    if !colmap_available() {
+    if !common::colmap_available() {
         return;
     }
     let model = random_model(13);

@@ -3,6 +3,8 @@
 //! determinism across thread counts.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -236,16 +238,7 @@ fn same_seed_gives_identical_files_whatever_the_thread_count() {
 
 #[test]
 fn colmap_reads_the_stand_in_model() {
-    let found = Command::new("colmap")
-        .arg("help")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !found {
-        assert!(
-            std::env::var("CI").map(|v| v != "true").unwrap_or(true),
-            "CI=true but colmap is missing"
-        );
-        eprintln!("skipping: colmap is not installed");
+    if !common::colmap_available() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();
@@ -272,16 +265,7 @@ fn colmap_reads_the_stand_in_model() {
 #[test]
 fn real_colmap_reconstructs_a_short_rendered_sequence() {
     use pipemeasure::sim::simulate::SfmSource;
-    let found = Command::new("colmap")
-        .arg("help")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !found {
-        assert!(
-            std::env::var("CI").map(|v| v != "true").unwrap_or(true),
-            "CI=true but colmap is missing"
-        );
-        eprintln!("skipping: colmap is not installed");
+    if !common::colmap_available() {
         return;
     }
     let dir = tempfile::tempdir().unwrap();

@@ -236,7 +236,7 @@ fn table2_section(t: &Table2) -> String {
     let detections: usize = t.detections.iter().map(|d| d.2).sum();
     let frames: usize = t.detections.iter().map(|d| d.1).sum();
     format!(
-        "\n## Table II — matching targets across views\n\nSimulated labs of {} ({} frames of {}x{} each, seed {}; {frames} frames, {detections} detections in all): SfM stand-in with pose errors of 0.1° and 3 mm, features with 0.5 px noise and 3 % gross mismatches; detections are the truth's fitted ellipses with σ = 0.01 px. Counted over pairs of detections in different frames (precision = freedom from mismatches, which the paper calls recall).\n\n{}",
+        "\n## Table II — matching targets across views\n\nSimulated labs of {} ({} frames of {}x{} each, seed {}; {frames} frames, {detections} detections in all): the SfM stand-in's own bundle adjustment of poses perturbed by 0.1° and 3 mm, features with 0.5 px noise and 3 % gross mismatches, its poses re-adjusted to the true intrinsics; detections are the truth's fitted ellipses with σ = 0.01 px. Counted over pairs of detections in different frames (precision = freedom from mismatches, which the paper calls recall).\n\n{}",
         o.devices.join(", "),
         o.frames,
         o.width,

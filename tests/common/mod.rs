@@ -44,3 +44,25 @@ pub fn pipemeasure(
         String::from_utf8_lossy(&out.stderr).into_owned(),
     )
 }
+
+/// Whether `program ARG` runs; under CI (`CI=true`) its absence is a failure, not a skip (the
+/// CI script installs it with `install`).
+pub fn program_available(program: &str, arg: &str, install: &str) -> bool {
+    let found = std::process::Command::new(program)
+        .arg(arg)
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if !found {
+        assert!(
+            std::env::var("CI").map(|v| v != "true").unwrap_or(true),
+            "CI=true but `{program}` is not on PATH: .ci/run must install it ({install})"
+        );
+        eprintln!("skipping: {program} is not installed ({install})");
+    }
+    found
+}
+
+/// [`program_available`] for COLMAP.
+pub fn colmap_available() -> bool {
+    program_available("colmap", "help", "apt-get install -y colmap")
+}
