@@ -74,6 +74,10 @@ pub struct CheckPointReport {
     /// The RMS distance the targets' covariances and the check points' σ predict (m), after
     /// the similarity's 7 parameters: `sqrt((1 − 7/(3n))·mean(s²·tr Σᵢ + 3σ_c²))`.
     pub predicted_rms_m: Option<f64>,
+    /// The residuals in units of their own σ: `sqrt(Σ dᵢᵀ(s²RΣᵢRᵀ + σ_c²I)⁻¹dᵢ / (3n − 7))`, 1
+    /// when the targets' covariances are right. Unlike the RMS it is not dominated by the few
+    /// weakly determined targets (three or four views) whose σ are largest.
+    pub normalized_rms: Option<f64>,
     /// The similarity's scale (metres per SfM unit).
     pub scale: f64,
     /// Its rotation (w, x, y, z).
@@ -125,14 +129,25 @@ pub fn check_points(
     let onto: Vec<Vector3<f64>> = pairs.iter().map(|&(_, c)| to[c]).collect();
     let sim = similarity_from_points(&from, &onto).ok_or_else(|| no_association(pairs.len()))?;
     let rot = *sim.rotation.to_rotation_matrix().matrix();
+    let metric_cov = |t: usize| {
+        covariance
+            .and_then(|cov| cov.get(t))
+            .map(|s| rot * s * rot.transpose() * (sim.scale * sim.scale))
+    };
+    // Σ dᵀ C⁻¹ d over the pairs, when every target has a covariance.
+    let chi2: Option<f64> = pairs
+        .iter()
+        .map(|&(t, c)| {
+            let d = to[c] - sim.apply(&targets[t]);
+            let m = metric_cov(t)? + Matrix3::identity() * (check_sigma_m * check_sigma_m);
+            Some(d.dot(&(m.try_inverse()? * d)))
+        })
+        .sum();
     let mut points: Vec<CheckPointResult> = pairs
         .iter()
         .map(|&(t, c)| {
             let r = to[c] - sim.apply(&targets[t]);
-            let target_std_m = covariance.and_then(|cov| cov.get(t)).map(|s| {
-                let m = rot * s * rot.transpose() * (sim.scale * sim.scale);
-                [0, 1, 2].map(|k| m[(k, k)].max(0.0).sqrt())
-            });
+            let target_std_m = metric_cov(t).map(|m| [0, 1, 2].map(|k| m[(k, k)].max(0.0).sqrt()));
             CheckPointResult {
                 id: check[c].0.clone(),
                 target: t,
@@ -169,8 +184,10 @@ pub fn check_points(
             / n as f64;
         ((1.0 - 7.0 / (3.0 * n as f64)).max(0.0) * mean).sqrt()
     });
+    let normalized_rms = chi2.map(|c| (c / (3 * n).saturating_sub(7).max(1) as f64).sqrt());
     let q = sim.rotation.into_inner();
     Ok(CheckPointReport {
+        normalized_rms,
         points,
         unassociated,
         rms_m,

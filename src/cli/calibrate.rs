@@ -455,10 +455,13 @@ fn check_points_markdown(c: &CheckPointReport) -> String {
         c.rms_m * 1e3,
         c.median_m * 1e3,
         c.max_m * 1e3,
-        c.predicted_rms_m.map_or(String::new(), |p| format!(
-            " (the targets' σ predict {:.3} mm)",
-            p * 1e3
-        ))
+        match (c.predicted_rms_m, c.normalized_rms) {
+            (Some(p), Some(z)) => format!(
+                " (the targets' σ predict {:.3} mm; the residuals are {z:.2} times their own σ)",
+                p * 1e3
+            ),
+            _ => String::new(),
+        }
     );
     md += "| id | target | dx (mm) | dy (mm) | dz (mm) | distance (mm) |\n|---|---|---|---|---|---|\n";
     for p in &c.points {
@@ -708,10 +711,13 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             c.rms_m * 1e3,
             c.median_m * 1e3,
             c.max_m * 1e3,
-            c.predicted_rms_m.map_or(String::new(), |p| format!(
-                "; the targets' σ predict {:.3} mm",
-                p * 1e3
-            ))
+            match (c.predicted_rms_m, c.normalized_rms) {
+                (Some(p), Some(z)) => format!(
+                    "; the targets' σ predict {:.3} mm; the residuals are {z:.2} × their own σ",
+                    p * 1e3
+                ),
+                _ => String::new(),
+            }
         );
     }
     if let (Some(dir), Some(net)) = (&args.network, &colmap) {

@@ -833,7 +833,7 @@ fn as_given(points: &[Vector3<f64>]) -> RetriangulatedCloud {
     }
 }
 
-/// Samples of the poses' covariance in [`pose_radius_std`].
+/// Samples of the poses' covariance drawn for the radius's pose σ ([`measure_site`]).
 pub const POSE_SAMPLES: usize = 32;
 
 /// The radius's σ from the poses' uncertainty, by Monte Carlo: `POSE_SAMPLES` draws of all the

@@ -38,12 +38,12 @@ pub struct SimpleRadial {
     pub k: f64,
 }
 
+/// A pixel with its Jacobians by the camera-frame point and by `(f, k)`.
+type Projected = (Vector2<f64>, Matrix2x3<f64>, [Vector2<f64>; 2]);
+
 impl SimpleRadial {
     /// The pixel of a camera-frame point, with its Jacobians by the point and by `(f, k)`.
-    fn project(
-        &self,
-        p: &Vector3<f64>,
-    ) -> Option<(Vector2<f64>, Matrix2x3<f64>, [Vector2<f64>; 2])> {
+    fn project(&self, p: &Vector3<f64>) -> Option<Projected> {
         if p.z <= 1e-9 {
             return None;
         }
