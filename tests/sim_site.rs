@@ -100,6 +100,26 @@ fn noise_free_dense_observations_and_fused_cloud_are_exact() {
         .similarity
         .clone();
     assert_eq!(fused.len(), obs.points.len());
+    // fused.ply.vis: per fused point the images (positions in the model's images file) it was
+    // triangulated from — each the frame of one of its observations.
+    let model = pipemeasure::io::colmap::Reconstruction::read(&dir.path().join("sparse")).unwrap();
+    let order =
+        pipemeasure::io::colmap::Reconstruction::image_file_order(&dir.path().join("sparse"))
+            .unwrap();
+    let vis =
+        pipemeasure::io::vis::read(&dir.path().join("dense/fused.ply.vis"), fused.len()).unwrap();
+    for (v, p) in vis.iter().zip(&obs.points).step_by(13) {
+        let names: Vec<&str> = v
+            .iter()
+            .map(|&k| model.images[&order[k as usize]].name.as_str())
+            .collect();
+        let seen: Vec<&str> = p
+            .observations
+            .iter()
+            .map(|o| obs.frames[o.frame as usize].as_str())
+            .collect();
+        assert_eq!(names, seen, "point {}", p.id);
+    }
     let mut worst_rel: f64 = 0.0;
     for (f, p) in fused.points.iter().zip(&obs.points).step_by(11) {
         let expected = sim.apply(&p.position);
