@@ -13,8 +13,6 @@
 //!    between two iterations, or the camera moves by less than a tenth of its projection σ
 //!    (capped, logged).
 
-use std::collections::HashMap;
-
 use nalgebra::{Vector2, Vector3};
 use serde::Serialize;
 
@@ -31,7 +29,7 @@ use crate::camera::{Intrinsics, Term};
 use crate::geometry::Rigid3;
 use crate::geometry::conic::Ellipse;
 use crate::geometry::epipolar::fundamental_from_cameras;
-use crate::io::colmap::{ImageId, Reconstruction};
+use crate::io::colmap::Reconstruction;
 
 /// How to calibrate.
 #[derive(Clone, Debug)]
@@ -784,12 +782,7 @@ pub fn feature_problem(
     a1: &Algorithm1,
     cameras: &[FrameCamera],
 ) -> Result<Problem<BrownModel>, CalibrateError> {
-    let index_of: HashMap<ImageId, usize> = a1
-        .frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| (f.image_id, k))
-        .collect();
+    let index_of = super::refine::frame_index(&a1.frames);
     let mut points = Vec::new();
     let mut observations = Vec::new();
     for track in &a1.tracks {

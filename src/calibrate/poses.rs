@@ -31,11 +31,6 @@ pub struct ConsistentPoses {
     pub sigma_after_px: f64,
     /// The last adjustment's summary.
     pub summary: AdjustSummary,
-    /// Covariance (σ0²·Q, minimum trace over the poses) of the frames' pose steps `(δω, δt)`
-    /// ([`crate::geometry::pose::retract`]), all frames jointly (6 rows per frame, image-id
-    /// order), from the feature tracks' inlier observations with the intrinsics fixed; `None`
-    /// when the network's precision cannot be computed.
-    pub pose_covariance: Option<nalgebra::DMatrix<f64>>,
 }
 
 impl ConsistentPoses {
@@ -65,9 +60,7 @@ pub fn consistent_poses(
     let summary = round(model, &mut a1, refine, adjust)?;
     let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
     refresh_pairs(&mut a1.pairs, &cameras);
-    let pose_covariance = pose_covariance(model, &a1, &cameras);
     Ok(ConsistentPoses {
-        pose_covariance,
         sigma_before_px,
         sigma_after_px: a1.reprojection_sigma,
         a1,
@@ -92,15 +85,19 @@ fn round(
     Ok(summary)
 }
 
-/// The poses' covariance at the re-adjusted cameras ([`ConsistentPoses::pose_covariance`]):
-/// the inlier tracks' problem with every intrinsic fixed, its reduced covariance without the
-/// (pinned) intrinsics' rows.
-fn pose_covariance(
+/// Covariance (σ0²·Q, minimum trace over the poses) of the frames' pose steps `(δω, δt)`
+/// ([`crate::geometry::pose::retract`]) at the re-adjusted cameras, all frames jointly (6 rows
+/// per frame, image-id order): the inlier tracks' problem with every intrinsic fixed, its
+/// reduced covariance without the (pinned) intrinsics' rows. `None` when the network's
+/// precision cannot be computed.
+#[must_use]
+pub fn pose_covariance(
     model: &Reconstruction,
-    a1: &Algorithm1,
-    cameras: &[FrameCamera],
+    poses: &ConsistentPoses,
 ) -> Option<nalgebra::DMatrix<f64>> {
-    let mut problem = feature_problem(model, a1, cameras).ok()?;
+    let a1 = &poses.a1;
+    let cameras = poses.cameras();
+    let mut problem = feature_problem(model, a1, &cameras).ok()?;
     problem.fixed.global = (0..problem.global.len()).collect();
     let precision = crate::adjust::precision(
         &problem,

@@ -301,6 +301,16 @@ pub fn model_frames(
         .collect()
 }
 
+/// Each frame's position by its COLMAP image id.
+#[must_use]
+pub fn frame_index(frames: &[ModelFrame]) -> HashMap<ImageId, usize> {
+    frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| (f.image_id, k))
+        .collect()
+}
+
 /// Per frame, the undistorted pixel of every feature (`None` for features the camera cannot
 /// undistort, which only happens far outside the image).
 fn undistorted_features(
@@ -339,11 +349,7 @@ pub fn algorithm1(
     config: &RefineConfig,
 ) -> Result<Algorithm1, RefineError> {
     let frames = model_frames(model, intrinsics)?;
-    let index_of: HashMap<ImageId, usize> = frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| (f.image_id, k))
-        .collect();
+    let index_of = frame_index(&frames);
     let features = undistorted_features(model, &frames);
 
     // Step 1: overlapping pairs and their shared features.
@@ -434,12 +440,7 @@ pub fn algorithm1(
 /// re-adjusted): every track robustly triangulated, its inliers and Algorithm 1's reprojection
 /// σ recomputed. The pairs are left as they are.
 pub fn retriangulate(model: &Reconstruction, a1: &mut Algorithm1, config: &RefineConfig) {
-    let index_of: HashMap<ImageId, usize> = a1
-        .frames
-        .iter()
-        .enumerate()
-        .map(|(k, f)| (f.image_id, k))
-        .collect();
+    let index_of = frame_index(&a1.frames);
     let features = undistorted_features(model, &a1.frames);
     let (tracks, rejected, sigma) =
         triangulate_tracks(model, &a1.frames, &index_of, &features, config);

@@ -23,7 +23,7 @@ use super::targets::match_site_targets;
 use crate::adjust::AdjustConfig;
 use crate::calibrate::matching::MatchConfig;
 use crate::calibrate::pipeline::CalibrateError;
-use crate::calibrate::poses::{ConsistentPoses, consistent_poses};
+use crate::calibrate::poses::{ConsistentPoses, consistent_poses, pose_covariance};
 use crate::calibrate::refine::RefineConfig;
 use crate::calibrate::views::FrameCamera;
 use crate::camera::convert::{ColmapModel, brown_from_colmap};
@@ -240,6 +240,8 @@ pub struct SiteScale {
     pub estimate: ScaleEstimate,
     /// The TLS ids used, in the order of the estimate's indices.
     pub tls_ids: Vec<String>,
+    /// Their coordinates, same order.
+    pub tls_points: Vec<Point3<f64>>,
     /// Per reconstructed target, its views.
     pub views: Vec<usize>,
     /// The device.
@@ -403,6 +405,7 @@ pub fn scale_from_targets(
     Ok(SiteScale {
         tracks,
         views: reconstructed.iter().map(|t| t.views).collect(),
+        tls_points: points,
         tls_ids: tls.into_iter().map(|t| t.id).collect(),
         estimate,
         device: device.to_string(),
@@ -454,6 +457,15 @@ pub fn retriangulate_cloud(
         views.push((original, image.cam_from_world(), new));
     }
     let n_views = views.len();
+    if let Some(bad) = visibility
+        .iter()
+        .flatten()
+        .find(|&&k| k as usize >= n_views)
+    {
+        return Err(SiteError::Input(format!(
+            "fused.ply.vis names image {bad} but the model has {n_views} images"
+        )));
+    }
     type Views = Vec<(usize, Vector2<f64>)>;
     let out: Vec<Option<(Vector3<f64>, Views)>> = points
         .par_iter()
@@ -473,15 +485,6 @@ pub fn retriangulate_cloud(
             Some((p, rays))
         })
         .collect();
-    if let Some(bad) = visibility
-        .iter()
-        .flatten()
-        .find(|&&k| k as usize >= n_views)
-    {
-        return Err(SiteError::Input(format!(
-            "fused.ply.vis names image {bad} but the model has {n_views} images"
-        )));
-    }
     let dropped = out.iter().filter(|p| p.is_none()).count();
     let (points, rays) = out.into_iter().flatten().unzip();
     Ok(RetriangulatedCloud {
@@ -837,10 +840,11 @@ fn as_given(points: &[Vector3<f64>]) -> RetriangulatedCloud {
 pub const POSE_SAMPLES: usize = 32;
 
 /// The radius's σ from the poses' uncertainty, by Monte Carlo: `POSE_SAMPLES` draws of all the
-/// poses from their joint covariance ([`ConsistentPoses::pose_covariance`]); per draw the
+/// poses from their joint covariance; per draw the
 /// targets and the pipe's points (those within 3 RMSE of the fitted cylinder) triangulated
 /// again, the scale or similarity re-estimated on the same association, and the cylinder
-/// fitted again. Seeded: the same input gives the same σ. `None` without a covariance.
+/// fitted again. Seeded: the same input gives the same σ. `None` without a covariance
+/// ([`pose_covariance`]).
 fn pose_radius_std(
     t: &SiteScale,
     cloud: &RetriangulatedCloud,
@@ -848,8 +852,8 @@ fn pose_radius_std(
     request: &SiteRequest,
 ) -> Option<f64> {
     use rand::SeedableRng;
-    let cov = t.poses.pose_covariance.as_ref()?;
-    let draw = covariance_sampler(cov)?;
+    let cov = pose_covariance(&t.model, &t.poses)?;
+    let draw = covariance_sampler(&cov)?;
     let nominal = Scaling::Targets(t.estimate.clone()).transform();
     let c = &pipe.fit.cylinder;
     let band = 3.0 * pipe.fit.rmse.max(1e-6);
@@ -863,12 +867,7 @@ fn pose_radius_std(
         return None;
     }
     let frames = &t.poses.a1.frames;
-    let tls = read_targets(&t.tls_targets).ok()?;
-    let tls: Vec<Point3<f64>> = t
-        .tls_ids
-        .iter()
-        .filter_map(|id| tls.iter().find(|x| &x.id == id).map(|x| x.position))
-        .collect();
+    let tls = &t.tls_points;
     let radii: Vec<f64> = (0..POSE_SAMPLES)
         .into_par_iter()
         .filter_map(|s| {
@@ -900,7 +899,7 @@ fn pose_radius_std(
                     triangulate(&obs)
                 })
                 .collect();
-            let transform = resampled_transform(&t.estimate, &targets, &tls)?;
+            let transform = resampled_transform(&t.estimate, &targets, tls)?;
             let points: Vec<Vector3<f64>> = near
                 .iter()
                 .filter_map(|&k| {
