@@ -117,6 +117,8 @@ pub struct Selected {
     pub steps: Vec<SelectionStep>,
     /// Radial residuals `(r_px, v_r_px)` of the model with c, u0, v0 only.
     pub radial_base: Vec<(f64, f64)>,
+    /// Bayesian information criterion of the chosen model (module docs).
+    pub bic: f64,
 }
 
 /// Radial residuals `(r, v_r)` in pixels of an adjusted `brown` problem: the component of
@@ -337,6 +339,40 @@ pub fn select_terms(
         summary: best.summary,
         steps,
         radial_base,
+        bic: best.bic,
+    })
+}
+
+/// Adjusts `problem` with a given set of `terms` free and no selection (the others reset to
+/// zero and fixed): the calibration loop's model once the selection alternated between two
+/// sets ([`super::pipeline`]).
+///
+/// # Errors
+/// [`AdjustError`] when either the base model (c, u0, v0, for the radial residuals of the
+/// report) or the model with `terms` cannot be adjusted.
+pub fn adjust_terms(
+    problem: &Problem<BrownModel>,
+    terms: &[Term],
+    adjust: &AdjustConfig,
+) -> Result<Selected, AdjustError> {
+    let mut start = problem.clone();
+    let mut bare = problem.clone();
+    for t in &Term::ALL[3..] {
+        bare.global[t.index()] = 0.0;
+        if !terms.contains(t) {
+            start.global[t.index()] = 0.0;
+        }
+    }
+    let base = fit(bare, &[Term::C, Term::U0, Term::V0], adjust)?;
+    let chosen = fit(start, terms, adjust)?;
+    Ok(Selected {
+        problem: chosen.problem,
+        terms: terms.to_vec(),
+        precision: chosen.precision,
+        summary: chosen.summary,
+        steps: Vec::new(),
+        radial_base: radial_residuals(&base.problem),
+        bic: chosen.bic,
     })
 }
 

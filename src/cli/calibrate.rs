@@ -180,6 +180,8 @@ struct ReportJson<'a> {
     iterations: &'a [pipemeasure::calibrate::pipeline::LoopRecord],
     converged: bool,
     stop_reason: &'a str,
+    /// The selection's alternation between two term sets and how the loop settled it.
+    term_alternation: Option<&'a pipemeasure::calibrate::pipeline::TermAlternation>,
     /// Frames (by name) in the final adjustment; the others saw too few targets.
     adjusted_frames: Vec<&'a str>,
     redundancy: usize,
@@ -406,6 +408,20 @@ fn write_report(
             " (not converged)"
         }
     );
+    if let Some(a) = &cal.term_alternation {
+        let names = |t: &[Term]| t.iter().map(|t| t.name()).collect::<Vec<_>>().join(", ");
+        md += &format!(
+            "At iteration {} the term selection alternated between {} (BIC {:.1}) and {} (BIC {:.1}); {} was kept (lower BIC) for the rest of the loop. The two cameras differ by {:.4} px at most over the frame ({:.2} × the projection σ).\n\n",
+            a.iteration,
+            names(&a.sets[0]),
+            a.bic[0],
+            names(&a.sets[1]),
+            a.bic[1],
+            names(&a.kept),
+            a.camera_difference_px,
+            a.camera_difference_ratio
+        );
+    }
     if cal.adjusted_frames.len() < cal.frame_names.len() {
         md += &format!(
             "{} of the {} frames saw too few matched targets to enter the adjustment.\n\n",
@@ -649,6 +665,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             iterations: &cal.iterations,
             converged: cal.converged,
             stop_reason: &cal.stop_reason,
+            term_alternation: cal.term_alternation.as_ref(),
             adjusted_frames: cal
                 .adjusted_frames
                 .iter()
