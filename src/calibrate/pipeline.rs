@@ -533,7 +533,11 @@ pub fn calibrate(
 
 /// Names of a set of terms, for the log (`c, u0, v0, k1`).
 fn term_names(terms: &[Term]) -> String {
-    terms.iter().map(|t| t.name()).collect::<Vec<_>>().join(", ")
+    terms
+        .iter()
+        .map(|t| t.name())
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 /// When this iteration's selection returned to the set of two iterations before after a
@@ -1090,7 +1094,12 @@ mod tests {
         let a = select_terms(&problem, &SelectionConfig::default(), &config, &|_| {}).unwrap();
         let again = adjust_terms(&problem, &a.terms, &config).unwrap();
         assert_eq!(again.terms, a.terms);
-        assert!((again.bic - a.bic).abs() < 1e-6 * a.bic.abs(), "{} {}", again.bic, a.bic);
+        assert!(
+            (again.bic - a.bic).abs() < 1e-6 * a.bic.abs(),
+            "{} {}",
+            again.bic,
+            a.bic
+        );
         for t in &a.terms {
             let (x, y) = (a.problem.global[t.index()], again.problem.global[t.index()]);
             let s = a.precision.global_std()[t.index()];
