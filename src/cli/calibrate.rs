@@ -22,7 +22,7 @@ use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::colmap::{ModelFormat, Reconstruction, run_colmap_sfm};
 use pipemeasure::profile::{
-    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, StdDev,
+    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, ReadoutTime, StdDev,
 };
 use pipemeasure::report::plots;
 use serde::Serialize;
@@ -264,6 +264,11 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
         images: cal.frame_names.len(),
         targets: cal.points.len(),
         observations: cal.observations.len(),
+        rolling_shutter: cal.rolling_shutter.as_ref().map(|r| ReadoutTime {
+            readout_s: r.readout_s,
+            readout_std_s: r.readout_std_s,
+            estimated: r.estimated,
+        }),
         provenance,
     }
 }
@@ -409,15 +414,14 @@ fn write_report(
         }
     );
     if let Some(a) = &cal.term_alternation {
-        let names = |t: &[Term]| t.iter().map(|t| t.name()).collect::<Vec<_>>().join(", ");
         md += &format!(
             "At iteration {} the term selection alternated between {} (BIC {:.1}) and {} (BIC {:.1}); {} was kept (lower BIC) for the rest of the loop. The two cameras differ by {:.4} px at most over the frame ({:.2} × the projection σ).\n\n",
             a.iteration,
-            names(&a.sets[0]),
+            a.sets[0],
             a.bic[0],
-            names(&a.sets[1]),
+            a.sets[1],
             a.bic[1],
-            names(&a.kept),
+            a.kept,
             a.camera_difference_px,
             a.camera_difference_ratio
         );
