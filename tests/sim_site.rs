@@ -182,3 +182,67 @@ fn tls_scan_and_targets_sit_on_the_truth_with_the_stated_noise() {
         );
     }
 }
+
+#[test]
+fn video_site_with_focus_breathing_records_each_frames_principal_distance() {
+    use pipemeasure::camera::BrownCamera;
+    use pipemeasure::sim::devices::{FOCUS_REFERENCE_M, P30};
+    use pipemeasure::sim::video::VideoConfig;
+    let dir = tempfile::tempdir().unwrap();
+    let options = SimulateOptions {
+        width: 480,
+        height: 270,
+        seed: 33,
+        video: Some(VideoConfig {
+            focus_breathing: true,
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let mut site = SiteOptions::default();
+    site.site.frames = 6;
+    let truth = simulate_site(&options, &site, dir.path(), &|_| {}).unwrap();
+    let video = truth.video.as_ref().unwrap();
+    assert_eq!(video.focus_breathing_m, P30.focus_breathing_m);
+    assert_eq!(video.readout_s, P30.readout_s);
+    let c0 = truth.camera.intrinsics.c;
+    let mut factors = Vec::new();
+    for frame in &truth.frames {
+        let m = frame.motion.as_ref().unwrap();
+        let factor = m.principal_distance / c0;
+        // The path is 1.5 m from the pipe, the wall 2 m: focused between 1 and 3 m, c is
+        // c·(1 + β·(1/d − 1/2.5)) with β = 5.6 mm.
+        let (near, far) = (
+            1.0 + P30.focus_breathing_m * (1.0 / 1.0 - 1.0 / FOCUS_REFERENCE_M),
+            1.0 + P30.focus_breathing_m * (1.0 / 3.0 - 1.0 / FOCUS_REFERENCE_M),
+        );
+        assert!(
+            (far..=near).contains(&factor),
+            "{}: factor {factor}",
+            frame.name
+        );
+        factors.push(factor);
+        // The views are seen through this frame's camera at their times.
+        let mut camera: BrownCamera = truth.camera.camera();
+        camera.intrinsics.c = m.principal_distance;
+        for v in &frame.targets {
+            let t = truth.targets.iter().find(|t| t.id == v.id).unwrap();
+            let uv = camera
+                .project_world(
+                    &video.trajectory.cam_from_world(v.time_s.unwrap()),
+                    &Vector3::from(t.centre),
+                )
+                .unwrap();
+            assert!((uv - nalgebra::Vector2::from(v.centre_px)).norm() < 1e-8);
+        }
+    }
+    // Focusing nearer than 2.5 m lengthens c: every frame here does.
+    assert!(factors.iter().all(|&f| f > 1.0), "{factors:?}");
+    let views: usize = truth.frames.iter().map(|f| f.targets.len()).sum();
+    println!("factors {factors:?}, {views} target views");
+    // The site's 8 targets, a few in each frame (20 with this seed).
+    assert!(views >= 12, "{views} target views");
+    // The dense cloud and the TLS data are made as for still frames.
+    assert!(truth.dense.as_ref().unwrap().fused_points > 1000);
+    assert!(dir.path().join("frames/frames.json").is_file());
+}

@@ -393,14 +393,6 @@ impl<'a> Filming<'a> {
             .collect()
     }
 
-    /// Number of frames [`Self::film`] renders.
-    #[must_use]
-    pub fn shot_count(&self) -> usize {
-        let main = self.orientations.len();
-        let neighbours = if self.config.neighbours { 2 * main } else { 0 };
-        main + neighbours + self.full_rate_times().len()
-    }
-
     fn full_rate_times(&self) -> Vec<f64> {
         if self.config.full_rate_width.is_none() {
             return Vec::new();
