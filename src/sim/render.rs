@@ -369,11 +369,13 @@ impl SplitMix {
 /// 2. on a grid of nodes every 32 px, the scene point seen at mid-exposure is projected at the
 ///    start and the end of the exposure: the blur displacement `d` (px), interpolated
 ///    bilinearly between nodes;
-/// 3. a pixel is smooth only when every pixel within `⌈max|d|/2⌉ + 1` of it (the largest
-///    displacement of the four surrounding nodes) has uniform probes of the same region:
+/// 3. a pixel is smooth only when every pixel within `⌈max|d_u|/2⌉ + 1` columns and
+///    `⌈max|d_v|/2⌉ + 1` rows of it (the largest displacements of the four surrounding nodes
+///    along u and v, plus the interpolation's support) has uniform probes of the same region:
 ///    no edge reaches it during the exposure. Its value is the mid-exposure image averaged
-///    along the segment `±d/2` (the motion blur of a smooth region, to first order in the
-///    exposure); with no exposure it is exactly the five-probe value;
+///    along the segment `±d/2`, sampled at most 1 px apart (the motion blur of a smooth
+///    region, to first order in the exposure); with no exposure it is exactly the five-probe
+///    value;
 /// 4. every other pixel — an edge is in it at some time of the exposure — takes
 ///    `samples × samples` rays at the stratified positions of [`render_radiance`], each at a
 ///    time from its own stratum of the exposure (the strata shuffled per pixel, jittered
@@ -483,7 +485,29 @@ pub fn render_radiance_moving(
                 }
             }
         });
-    // 3 and 4.
+    // 3 and 4. The neighbourhood a pixel's exposure reaches, per grid cell: half the largest
+    // displacement of the cell's nodes along u and along v, plus the bilinear support.
+    let reach = |d: f64| {
+        if d > 0.0 {
+            (d / 2.0).ceil() as usize + 1
+        } else {
+            0
+        }
+    };
+    let cells: Vec<(usize, usize)> = (0..(gx - 1) * (gy - 1))
+        .map(|k| {
+            let (i, j) = (k % (gx - 1), k / (gx - 1));
+            let corners = [
+                displacement[j * gx + i],
+                displacement[j * gx + i + 1],
+                displacement[(j + 1) * gx + i],
+                displacement[(j + 1) * gx + i + 1],
+            ];
+            let du = corners.iter().map(|d| d.x.abs()).fold(0.0, f64::max);
+            let dv = corners.iter().map(|d| d.y.abs()).fold(0.0, f64::max);
+            (reach(du), reach(dv))
+        })
+        .collect();
     let n = config.samples as usize;
     let nn = n * n;
     let mut out = vec![0f32; w * h];
@@ -498,32 +522,30 @@ pub fn render_radiance_moving(
             let u_centre = c as f64 + 0.5;
             let x = u_centre / g as f64;
             let i = (x as usize).min(gx - 2);
-            let fx = x - i as f64;
-            let at = |di: usize, dj: usize| displacement[(j + dj) * gx + i + di];
-            let d = (at(0, 0) * (1.0 - fx) + at(1, 0) * fx) * (1.0 - fy)
-                + (at(0, 1) * (1.0 - fx) + at(1, 1) * fx) * fy;
-            let d_max = [at(0, 0), at(1, 0), at(0, 1), at(1, 1)]
-                .iter()
-                .map(|d| d.norm())
-                .fold(0.0, f64::max);
+            let (reach_u, reach_v) = cells[j * (gx - 1) + i];
             let id = ids[r * w + c];
+            if id != NOT_UNIFORM && reach_u == 0 && reach_v == 0 {
+                // No blur here: the five-probe value.
+                *value = base[r * w + c];
+                continue;
+            }
             let smooth = id != NOT_UNIFORM && {
-                let radius = if d_max > 0.0 {
-                    (d_max / 2.0).ceil() as usize + 1
-                } else {
-                    0
-                };
-                let (left, right) = (radius.min(c), radius.min(w - 1 - c));
-                (r.saturating_sub(radius)..=(r + radius).min(h - 1)).all(|rr| {
+                let (left, right) = (reach_u.min(c), reach_u.min(w - 1 - c));
+                (r.saturating_sub(reach_v)..=(r + reach_v).min(h - 1)).all(|rr| {
                     let k = rr * w + c;
                     ids[k] == id
                         && usize::from(runs[k].0) >= left
                         && usize::from(runs[k].1) >= right
                 })
             };
+            let fx = x - i as f64;
+            let at = |di: usize, dj: usize| displacement[(j + dj) * gx + i + di];
+            let d = (at(0, 0) * (1.0 - fx) + at(1, 0) * fx) * (1.0 - fy)
+                + (at(0, 1) * (1.0 - fx) + at(1, 1) * fx) * fy;
             *value = if smooth {
-                // The mid-exposure image averaged along ±d/2 (samples ≤ 0.5 px apart).
-                let count = ((2.0 * d.norm()).ceil() as usize).max(1);
+                // The mid-exposure image averaged along ±d/2 (midpoint rule, samples at most
+                // 1 px apart: the texture is already smoothed by the 0.7 px optical blur).
+                let count = (d.norm().ceil() as usize).max(1);
                 let mut s = 0f32;
                 for k in 0..count {
                     let p = d * ((k as f64 + 0.5) / count as f64 - 0.5);
