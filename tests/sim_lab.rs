@@ -766,4 +766,29 @@ fn simulate_cli_films_video_and_refuses_bad_video_options_with_exit_code_2() {
     assert_eq!(video.readout_s, 0.025);
     assert!(video.focus_breathing_m > 0.0);
     assert!(out.join("frames/neighbours/frame_0002+1.png").is_file());
+    assert!(out.join("video/frame_00006.png").is_file());
+    // Replaced by still frames: no stale neighbours, sidecar or video stay behind.
+    let (code, _, stderr) = common::pipemeasure(
+        dir.path(),
+        &[
+            "simulate", "lab", "--out", o, "--width", "320", "--frames", "2", "--force",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        Truth::read(&out.join("truth.json"))
+            .unwrap()
+            .video
+            .is_none()
+    );
+    for stale in [
+        "frames/neighbours/frame_0002+1.png",
+        "frames/frames.json",
+        "video/frame_00006.png",
+        "video/motion.json",
+        "video.mp4",
+    ] {
+        assert!(!out.join(stale).exists(), "{stale} left behind");
+    }
 }

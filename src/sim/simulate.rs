@@ -359,6 +359,7 @@ fn film(
     out: &Path,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Filmed, SimError> {
+    super::video::clear_video_outputs(out)?;
     if options.video.is_none() {
         let frames = render_frames(scene, camera, &stations, gain, options, out, progress)?;
         let sfm = write_sparse(scene, camera, &stations, options, out)?;

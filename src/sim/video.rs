@@ -688,6 +688,43 @@ fn encode_mp4(dir: &Path, frame_rate: f64, mp4: &Path) -> (Option<String>, Optio
     }
 }
 
+/// Removes the video outputs an earlier simulation may have left in `out` (only files of the
+/// names this module writes: a re-run with other options must not leave stale neighbours for
+/// COLMAP, which reads the frames folder recursively, or a stale sidecar for `calibrate`).
+///
+/// # Errors
+///
+/// A file that exists but cannot be removed.
+pub fn clear_video_outputs(out: &Path) -> Result<(), WriteError> {
+    let remove = |path: &Path| match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(WriteError::new(path, e)),
+        _ => Ok(()),
+    };
+    let ours = |dir: &Path, keep: &dyn Fn(&str) -> bool| -> Result<(), WriteError> {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return Ok(());
+        };
+        for entry in entries.flatten() {
+            let name = entry.file_name().to_string_lossy().into_owned();
+            if keep(&name) {
+                remove(&entry.path())?;
+            }
+        }
+        Ok(())
+    };
+    remove(&out.join("frames").join("frames.json"))?;
+    ours(&out.join("frames").join("neighbours"), &|n| {
+        n.starts_with("frame_")
+            && [".png", ".jpg"]
+                .iter()
+                .any(|e| n.ends_with(&format!("-1{e}")) || n.ends_with(&format!("+1{e}")))
+    })?;
+    ours(&out.join("video"), &|n| {
+        n == "motion.json" || (n.starts_with("frame_") && n.ends_with(".png"))
+    })?;
+    remove(&out.join("video.mp4"))
+}
+
 fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), WriteError> {
     let text = serde_json::to_string_pretty(value)
         .map_err(|e| WriteError::new(path, std::io::Error::other(e)))?;
