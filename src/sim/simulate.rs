@@ -339,26 +339,28 @@ fn truth_record(
 }
 
 /// What filming a scene produced.
-struct Filmed {
+struct Filmed<'a> {
     frames: Vec<super::truth::TruthFrame>,
     /// The stations at the extracted frames' times.
     stations: Vec<Station>,
     sfm: super::truth::SfmTruth,
     video: Option<super::truth::VideoTruth>,
+    /// The video's camera, for the site's dense observations.
+    filming: Option<Filming<'a>>,
 }
 
 /// Renders the frames (stills, or a video when `options.video` is set) and writes the sparse
 /// model of the extracted frames; with video, the neighbours and the full-rate video come after
 /// the sparse model (COLMAP reads the frames folder recursively).
-fn film(
-    scene: &Scene,
+fn film<'a>(
+    scene: &'a Scene,
     camera: &BrownCamera,
     stations: Vec<Station>,
     gain: f64,
-    options: &SimulateOptions,
+    options: &'a SimulateOptions,
     out: &Path,
     progress: &(dyn Fn(usize) + Sync),
-) -> Result<Filmed, SimError> {
+) -> Result<Filmed<'a>, SimError> {
     super::video::clear_video_outputs(out)?;
     if options.video.is_none() {
         let frames = render_frames(scene, camera, &stations, gain, options, out, progress)?;
@@ -368,6 +370,7 @@ fn film(
             stations,
             sfm,
             video: None,
+            filming: None,
         });
     }
     let filming = Filming::new(scene, camera, &stations, gain, options)?;
@@ -380,6 +383,7 @@ fn film(
         stations,
         sfm,
         video: Some(video),
+        filming: Some(filming),
     })
 }
 
@@ -511,7 +515,7 @@ pub fn simulate_site(
     out: &Path,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Truth, SimError> {
-    use super::dense::{dense_observations, fuse, tls_scan, tls_targets};
+    use super::dense::{dense_observations, dense_observations_with, fuse, tls_scan, tls_targets};
     options.validate()?;
     site.site.validate()?;
     let camera = options.camera()?;
@@ -524,6 +528,7 @@ pub fn simulate_site(
         stations,
         sfm,
         video,
+        filming,
     } = film(&scene, &camera, stations, gain, options, out, progress)?;
 
     // Dense observations and the fused cloud at the sparse model's poses.
@@ -531,7 +536,19 @@ pub fn simulate_site(
     std::fs::create_dir_all(&dense_dir).map_err(|e| WriteError::new(&dense_dir, e))?;
     let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
     let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
-    let obs = dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed);
+    // A video's frames see each point in its own row (the cloud then carries the rolling
+    // shutter's distortion, as a dense reconstruction of such frames does).
+    let obs = match &filming {
+        None => dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed),
+        Some(filming) => dense_observations_with(
+            &scene,
+            &camera,
+            &filming.dense_observer(),
+            &names,
+            &site.dense,
+            options.seed,
+        ),
+    };
     obs.write(&dense_dir.join("observations.bin"))?;
     let model =
         crate::io::colmap::Reconstruction::read_format(&out.join("sparse"), ModelFormat::Text)

@@ -23,7 +23,7 @@
 use std::path::Path;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use nalgebra::Vector3;
+use nalgebra::{Point3, Vector2, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -31,7 +31,7 @@ use super::devices::{DEFAULT_EXPOSURE_S, FOCUS_REFERENCE_M, breathing_factor, pr
 use super::lab::Station;
 use super::render::{MovingView, RayGrid, RenderConfig, render_frame_moving};
 use super::scene::Scene;
-use super::shutter::{PoseTable, Shutter};
+use super::shutter::{PoseTable, Shutter, project_rolling_shutter};
 use super::simulate::{SimError, SimulateOptions};
 use super::trajectory::{MotionConfig, Trajectory};
 use super::truth::{
@@ -565,6 +565,45 @@ impl<'a> Filming<'a> {
             None => None,
         };
         Ok(self.truth(full_rate))
+    }
+
+    /// How the extracted frames see surface points, for the site's dense observations: point
+    /// `p` (normal `n`) in frame `f` at its exact rolling-shutter pixel, when in front, facing
+    /// the camera, inside the frame (1 px margin) and unoccluded at the time it is seen.
+    #[must_use]
+    pub fn dense_observer(
+        &self,
+    ) -> impl Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + '_ {
+        let cameras: Vec<BrownCamera> = (0..self.orientations.len())
+            .map(|k| breathing_camera(&self.camera, self.breathing(self.main_time(k))))
+            .collect();
+        move |f, p, n| {
+            let camera = &cameras[f];
+            let shutter = self.shutter(self.main_time(f));
+            let frame_pose = self.trajectory.cam_from_world(shutter.time_s);
+            // Far outside the frame at the frame time: not worth the row search (the rolling
+            // shutter moves points by pixels, not by a tenth of the frame).
+            let uv = camera.project_world(&frame_pose, &p.coords)?;
+            if !camera.contains(&uv, -0.1 * f64::from(camera.width)) {
+                return None;
+            }
+            let seen = project_rolling_shutter(
+                camera,
+                &shutter,
+                |t| self.trajectory.cam_from_world(t),
+                &p.coords,
+                Some(uv.y),
+            )?;
+            let eye =
+                crate::geometry::pose::camera_centre(&self.trajectory.cam_from_world(seen.time_s));
+            if n.dot(&(eye - p)) <= 0.0
+                || !camera.contains(&seen.uv, 1.0)
+                || !self.scene.visible(&eye, p, 1e-4)
+            {
+                return None;
+            }
+            Some(seen.uv)
+        }
     }
 
     /// The video's truth record.
