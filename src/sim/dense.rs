@@ -155,6 +155,10 @@ pub fn dense_observations(
     )
 }
 
+/// How a frame sees a surface point: `observe(frame, point, normal)`, its pixel or `None`.
+pub type Observer<'a> =
+    dyn Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + 'a;
+
 /// [`dense_observations`] with the pixel of surface point `p` (normal `n`) in frame `f` given
 /// by `observe(f, p, n)` (`None` when not seen): a moving rolling-shutter camera's
 /// ([`super::video`]) sees each point in its own row.
@@ -162,7 +166,7 @@ pub fn dense_observations(
 pub fn dense_observations_with(
     scene: &Scene,
     camera: &BrownCamera,
-    observe: &(dyn Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync),
+    observe: &Observer<'_>,
     frame_names: &[String],
     config: &DenseConfig,
     seed: u64,

@@ -570,7 +570,6 @@ impl<'a> Filming<'a> {
     /// How the extracted frames see surface points, for the site's dense observations: point
     /// `p` (normal `n`) in frame `f` at its exact rolling-shutter pixel, when in front, facing
     /// the camera, inside the frame (1 px margin) and unoccluded at the time it is seen.
-    #[must_use]
     pub fn dense_observer(
         &self,
     ) -> impl Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + '_ {
