@@ -14,6 +14,11 @@
 //! `samples × samples` stratified rays. An edge can slip past the five probes only by bulging
 //! into a pixel through one side and out again: for a disc of radius R px the missed area is at
 //! most the sagitta 1/(8R) times the chord, under 2 % of a pixel for R ≥ 5 px.
+//!
+//! Video frames ([`render_radiance_moving`]): every sample is taken through the pose of a
+//! moving camera at its row's time within the exposure (rolling shutter, motion blur), with the
+//! adaptive rule widened by the blur's displacement; without motion it is the still renderer
+//! bit for bit.
 
 use image::{DynamicImage, RgbImage};
 use nalgebra::{Point3, Vector2, Vector3};

@@ -58,7 +58,8 @@ impl Shutter {
         self.time_s + (v / f64::from(height) - 0.5) * self.readout_s
     }
 
-    /// The time span over which some row of an image `height` rows high is exposed.
+    /// The time span over which some row of the frame is exposed: from the top row's exposure
+    /// start to the bottom row's exposure end.
     #[must_use]
     pub fn span(&self) -> (f64, f64) {
         let half = 0.5 * (self.readout_s + self.exposure_s);
