@@ -544,7 +544,13 @@ pub fn calibrate(
             && !neighbour_observations.is_empty()
         {
             let held = 1e3 * selected.problem.global[BrownModel::READOUT];
-            selected = estimate_readout_time(selected, &neighbour_observations, &config.adjust)?;
+            selected = estimate_readout_time(
+                selected,
+                &neighbour_observations,
+                &config.selection,
+                &config.adjust,
+                log,
+            )?;
             log(&format!(
                 "iteration {iteration}: readout time from {} observations in the neighbouring video frames (weight {:.3} against the frames'): {:.2} ± {:.2} ms (held at {held:.2} ms in the selection); σ0 {:.4} px",
                 neighbour_observations.len(),

@@ -353,7 +353,7 @@ pub fn select_terms(
         base,
         base_terms.clone(),
         config,
-        false,
+        Stage::GlobalShutter,
         &mut steps,
         adjust,
         log,
@@ -371,7 +371,15 @@ pub fn select_terms(
                 start.global[t.index()] = 0.0;
             }
             let base = fit(start, &base_terms, false, adjust)?;
-            (best, terms) = stepwise(base, base_terms, config, true, &mut steps, adjust, log);
+            (best, terms) = stepwise(
+                base,
+                base_terms,
+                config,
+                Stage::RollingShutter,
+                &mut steps,
+                adjust,
+                log,
+            );
             rolling = Some(setup);
         }
     }
@@ -389,24 +397,38 @@ pub fn select_terms(
     })
 }
 
-/// The forward stepwise selection of the intrinsic candidates of `config` from `best` (its
-/// `terms` free), each kept when significant and lowering the BIC; the decisions are appended
-/// to `steps` (`rolling_shutter`: the model has the motions, and a readout time held).
+/// What the model of a stepwise pass has besides the intrinsics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    /// A global shutter.
+    GlobalShutter,
+    /// The frames' motions, the readout time held.
+    RollingShutter,
+    /// The motions, the neighbours' observations and the readout time free.
+    WithNeighbours,
+}
+
+/// The forward stepwise selection of the intrinsic candidates of `config` not yet in `terms`
+/// from `best` (its `terms` free), each kept when significant and lowering the BIC; the
+/// decisions are appended to `steps`.
 fn stepwise(
     mut best: Fit,
     mut terms: Vec<Term>,
     config: &SelectionConfig,
-    rolling_shutter: bool,
+    stage: Stage,
     steps: &mut Vec<SelectionStep>,
     adjust: &AdjustConfig,
     log: &dyn Fn(&str),
 ) -> (Fit, Vec<Term>) {
     log(&format!(
-        "terms c, u0, v0{}: σ0 {:.4} px, BIC {:.1}, radial trend {:.4} px (F {:.1})",
-        if rolling_shutter {
-            " and the rolling shutter"
-        } else {
-            ""
+        "terms {}{}: σ0 {:.4} px, BIC {:.1}, radial trend {:.4} px (F {:.1})",
+        names_list(&terms, ", "),
+        match stage {
+            Stage::GlobalShutter => "",
+            Stage::RollingShutter => " and the rolling shutter",
+            Stage::WithNeighbours => {
+                " and the rolling shutter with the neighbouring video frames"
+            }
         },
         best.precision.sigma0,
         best.bic,
@@ -418,6 +440,9 @@ fn stepwise(
         let Candidate::Terms(group) = candidate else {
             continue;
         };
+        if group.iter().all(|t| terms.contains(t)) {
+            continue;
+        }
         let radial = is_radial(group);
         if radial && radial_done {
             continue;
@@ -434,9 +459,10 @@ fn stepwise(
         }
         let mut trial_terms = terms.clone();
         trial_terms.extend(group.iter().copied());
-        // The readout time is held in the selection (one frame per instant shows only the
-        // products readout × velocity).
-        let trial = match fit(best.problem.clone(), &trial_terms, false, adjust) {
+        // The readout time is held without the neighbours (one frame per instant shows only
+        // the products readout × velocity).
+        let readout_free = stage == Stage::WithNeighbours;
+        let trial = match fit(best.problem.clone(), &trial_terms, readout_free, adjust) {
             Ok(t) => t,
             Err(e) => {
                 let reason = format!("adjustment failed: {e}");
@@ -600,7 +626,9 @@ fn try_rolling_shutter(
 pub fn estimate_readout_time(
     selected: Selected,
     extra: &[Observation],
+    config: &SelectionConfig,
     adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
 ) -> Result<Selected, AdjustError> {
     let Some(setup) = selected.rolling_shutter else {
         return Err(AdjustError::Invalid(
@@ -650,8 +678,22 @@ pub fn estimate_readout_time(
             "no variance-component iteration ran".into(),
         ));
     };
+    // The terms the motions hid (a decentring whose p2 a common roll rate could mimic) are
+    // tried again now that the neighbours fix the motions.
+    let mut steps = selected.steps.clone();
+    let (fitted, terms) = stepwise(
+        fitted,
+        selected.terms.clone(),
+        config,
+        Stage::WithNeighbours,
+        &mut steps,
+        adjust,
+        log,
+    );
     let readout_std_s = fitted.precision.global_std()[BrownModel::READOUT];
     Ok(Selected {
+        terms,
+        steps,
         rolling_shutter: Some(RollingShutterSetup {
             estimate_readout: true,
             readout_s: fitted.problem.global[BrownModel::READOUT],
