@@ -3,7 +3,7 @@
 #![allow(clippy::unwrap_used)]
 
 use pipemeasure::adjust::{AdjustConfig, BrownModel, Problem};
-use pipemeasure::calibrate::selection::{SelectionConfig, select_terms};
+use pipemeasure::calibrate::selection::{RollingShutterSetup, SelectionConfig, select_terms};
 use pipemeasure::camera::{Intrinsics, Term};
 use pipemeasure::experiments::calibration::truth_target_problem;
 use pipemeasure::sim::lab::LabConfig;
@@ -34,14 +34,29 @@ fn truth_problem(
 
 fn check_selection(device: &str, width: u32, frames: usize, noise: f64, true_terms: &[Term]) {
     let (problem, truth) = truth_problem(device, width, frames, noise);
-    let sel = select_terms(
-        &problem,
-        &SelectionConfig::default(),
-        &AdjustConfig::default(),
-        &|m| eprintln!("{m}"),
-    )
+    // The rolling shutter is a candidate (readout held at a phone's 25 ms): these frames are
+    // still, so it must be refused.
+    let config = SelectionConfig {
+        rolling_shutter: Some(RollingShutterSetup {
+            height_px: f64::from(width) * 9.0 / 16.0,
+            readout_s: 0.025,
+            estimate_readout: false,
+        }),
+        ..SelectionConfig::default()
+    };
+    let sel = select_terms(&problem, &config, &AdjustConfig::default(), &|m| {
+        eprintln!("{m}")
+    })
     .unwrap();
     eprintln!("{:?}", sel.terms);
+    assert!(
+        sel.rolling_shutter.is_none(),
+        "a rolling shutter kept on still frames"
+    );
+    assert!(
+        sel.steps.iter().any(|s| s.rolling_shutter && !s.accepted),
+        "the rolling shutter was not tried"
+    );
     for t in &Term::ALL[3..] {
         assert_eq!(
             sel.terms.contains(t),

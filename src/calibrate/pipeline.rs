@@ -61,10 +61,11 @@ pub struct CalibrateConfig {
     /// gate, or a term on the edge of selection, then move nothing that matters), default 0.1.
     pub camera_stable_ratio: f64,
     /// The rolling-shutter candidate of the term selection (issue 19): `None` leaves it out.
-    /// The selection tries it with the readout time held at [`ReadoutStart::readout_s`]
-    /// (with one frame per instant only readout × velocity shows); once kept, the readout
-    /// time is estimated from the frames' neighbours in the video when
-    /// [`CalibrationInput::neighbours`] has them, unless [`ReadoutStart::hold`].
+    /// It is tried when [`CalibrationInput::neighbours`] has the frames' neighbours in the
+    /// video, or when [`ReadoutStart::hold`] gives the readout time. The selection tries it
+    /// with the readout time held at [`ReadoutStart::readout_s`] (with one frame per instant
+    /// only readout × velocity shows); once kept, the readout time is estimated from the
+    /// neighbours, unless held.
     pub rolling_shutter: Option<ReadoutStart>,
 }
 
@@ -334,18 +335,28 @@ pub fn calibrate(
             input.neighbours.len()
         )));
     }
+    let links = neighbour_links(input);
+    let has_neighbours = links.iter().any(|l| !l.is_empty());
     let mut config = config.clone();
-    if let Some(start) = config.rolling_shutter {
-        config.selection.rolling_shutter = Some(RollingShutterSetup {
-            height_px: f64::from(input.image_size.1),
-            readout_s: start.readout_s,
-            estimate_readout: false,
-        });
+    match config.rolling_shutter {
+        // Without neighbours the readout time cannot be estimated, and the motions of frames
+        // alone leave u0 + p2 (and b1, b2) free along a rate common to all frames: on BoofCV's
+        // real dot-grid video they drifted there until the next matching lost 19 of 42
+        // frames. The model is then tried only with a readout time the user gives.
+        Some(start) if start.hold || has_neighbours => {
+            config.selection.rolling_shutter = Some(RollingShutterSetup {
+                height_px: f64::from(input.image_size.1),
+                readout_s: start.readout_s,
+                estimate_readout: false,
+            });
+        }
+        Some(_) => log(
+            "rolling shutter: not tried: no neighbouring video frames (FRAMES/frames.json) tie the frames' motions to time; give the readout time (--readout-time) to try it",
+        ),
+        None => {}
     }
     let config = &config;
-    let links = neighbour_links(input);
-    let estimate_readout =
-        config.rolling_shutter.is_some_and(|r| !r.hold) && links.iter().any(|l| !l.is_empty());
+    let estimate_readout = config.rolling_shutter.is_some_and(|r| !r.hold) && has_neighbours;
     if !input.neighbours.is_empty() {
         let linked: usize = links
             .iter()
