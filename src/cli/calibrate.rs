@@ -20,21 +20,23 @@ use pipemeasure::camera::Term;
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
+use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
 use pipemeasure::io::colmap::{ModelFormat, Reconstruction, run_colmap_sfm};
 use pipemeasure::profile::{
-    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, StdDev,
+    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, StdDev, backup_path,
+    validate_device_name,
 };
 use pipemeasure::report::plots;
 use serde::Serialize;
 
-use super::Globals;
 use super::matching::detect_named_frames;
+use super::{Globals, usage, values};
 
 /// Arguments of `calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Device name: the profile is written as `calibrations/NAME.json` unless `--out` says
-    /// otherwise.
+    /// Device name (a name, not a path): the profile is written as `calibrations/NAME.json`
+    /// unless `--out` says otherwise.
     #[arg(long)]
     device: String,
     /// Folder of the lab video's frames (image names in the SfM model are relative to it).
@@ -50,7 +52,8 @@ pub struct Args {
     /// Where to write the profile (default `calibrations/DEVICE.json`).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Replace an existing profile (the old one is kept as `PATH.bak`).
+    /// Replace an existing profile (the old one is kept as a numbered backup, `PATH.1.bak`,
+    /// `PATH.2.bak`, …).
     #[arg(long)]
     force: bool,
     /// Write plots (SVG), `report.json` and `report.md` into this folder.
@@ -60,12 +63,12 @@ pub struct Args {
     /// much their projections differ over the image.
     #[arg(long)]
     cross_validate: bool,
-    /// Smallest semi-minor axis of a target to use (px).
-    #[arg(long, default_value_t = 4.0)]
+    /// Smallest semi-minor axis of a target to use (px, at least 1).
+    #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
-    /// Cap on matching/adjustment iterations.
-    #[arg(long, default_value_t = 5)]
-    max_iterations: usize,
+    /// Cap on matching/adjustment iterations (at least 1).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..))]
+    max_iterations: u16,
     /// Write the adjusted network as a COLMAP model (text) into this folder: the profile's
     /// camera, the images at their adjusted poses, the targets as points3D.
     #[arg(long)]
@@ -75,8 +78,8 @@ pub struct Args {
     /// similarity, in the report and on stdout.
     #[arg(long)]
     check_points: Option<PathBuf>,
-    /// σ per axis of the check points (m), for the predicted RMS.
-    #[arg(long, default_value_t = 0.0)]
+    /// σ per axis of the check points (m, 0 or more), for the predicted RMS.
+    #[arg(long, default_value_t = 0.0, value_parser = values::non_negative)]
     check_point_sigma: f64,
 }
 
@@ -319,7 +322,6 @@ fn write_report(
     size: (u32, u32),
     report: &ReportJson<'_>,
 ) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     // Radial residuals before (c, u0, v0 only) and after (the chosen model).
     let (u0, v0) = (cal.intrinsics.u0, cal.intrinsics.v0);
     let after: Vec<(f64, f64)> = cal
@@ -482,14 +484,9 @@ fn check_points_markdown(c: &CheckPointReport) -> String {
 }
 
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    validate_device_name(&args.device).map_err(|e| usage(format!("--device: {e}")))?;
     if !args.frames.is_dir() {
         bail!("--frames {}: not a folder", args.frames.display());
-    }
-    if !(args.check_point_sigma.is_finite() && args.check_point_sigma >= 0.0) {
-        bail!(
-            "--check-point-sigma {}: must be a number ≥ 0 (m)",
-            args.check_point_sigma
-        );
     }
     // Read the check points first: a bad file fails before minutes of calibration.
     let check_list = args
@@ -512,18 +509,40 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         .unwrap_or_else(|| Path::new(CALIBRATIONS_DIR).join(format!("{}.json", args.device)));
     if out.exists() && !args.force {
         bail!(
-            "{} exists: pass --force to replace it (the old profile is kept as {}.bak) or --out \
-             to write elsewhere",
+            "{} exists: pass --force to replace it (the old profile is kept as a numbered backup, \
+             {}) or --out to write elsewhere",
             out.display(),
+            backup_path(&out, 1).display()
+        );
+    }
+    // Every destination before minutes of calibration: the profile's folder is created if
+    // missing (calibrations/), the report's and the network's too.
+    check_writable_dir(
+        out.parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new(".")),
+    )?;
+    if out.is_dir() {
+        bail!(
+            "--out {}: is a folder, expected the profile's file name",
             out.display()
         );
+    }
+    for dir in [&args.report, &args.network].into_iter().flatten() {
+        check_writable_dir(dir)?;
     }
     let model = sfm_model(args, globals.quiet)?;
     let names = check_frames(&model, &args.frames)?;
     let size = image_size(&model)?;
-    let detections = detect_named_frames(&args.frames, &names, args.min_semi_minor, globals.quiet)?;
+    let detections = detect_named_frames(
+        &args.frames,
+        &names,
+        size,
+        args.min_semi_minor,
+        globals.quiet,
+    )?;
     let config = CalibrateConfig {
-        max_iterations: args.max_iterations,
+        max_iterations: usize::from(args.max_iterations),
         ..CalibrateConfig::default()
     };
     let quiet = globals.quiet;
@@ -637,10 +656,10 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         ),
         None => None,
     };
-    profile
-        .write(&out, args.force)
-        .with_context(|| format!("writing the profile {}", out.display()))?;
-    if let Some(dir) = &args.report {
+    // Every output is written beside its destination first; only when all are complete are
+    // they moved into place, the profile last (a failure before leaves nothing new behind).
+    let report_dir = args.report.as_deref().map(StagedDir::new).transpose()?;
+    if let (Some(staged), Some(dir)) = (&report_dir, &args.report) {
         let report = ReportJson {
             schema: "pipemeasure.calibration-report/1",
             device: &args.device,
@@ -666,8 +685,28 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             network: &network,
             check_points: check_report.as_ref(),
         };
-        write_report(dir, &cal, size, &report)?;
+        write_report(staged.path(), &cal, size, &report)
+            .with_context(|| format!("writing the report {}", dir.display()))?;
     }
+    let network_dir = match (&args.network, &colmap) {
+        (Some(dir), Some(net)) => {
+            let staged = StagedDir::new(dir)?;
+            net.model
+                .write(staged.path(), ModelFormat::Text)
+                .with_context(|| format!("writing the network {}", dir.display()))?;
+            Some(staged)
+        }
+        _ => None,
+    };
+    let staged_profile = profile
+        .stage(&out, args.force)
+        .with_context(|| format!("writing the profile {}", out.display()))?;
+    for staged in [report_dir, network_dir].into_iter().flatten() {
+        staged.commit()?;
+    }
+    let backup = staged_profile
+        .commit()
+        .with_context(|| format!("writing the profile {}", out.display()))?;
     outln!(
         "calibrated {} from {} frames: {} targets, {} observations, σ0 {:.4} px, residual RMS {:.4} px",
         args.device,
@@ -721,9 +760,6 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         );
     }
     if let (Some(dir), Some(net)) = (&args.network, &colmap) {
-        net.model
-            .write(dir, ModelFormat::Text)
-            .with_context(|| format!("writing the network {}", dir.display()))?;
         outln!(
             "adjusted network written to {} as a COLMAP model ({} images, {} targets; camera {}{})",
             dir.display(),
@@ -742,6 +778,9 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         );
     }
     outln!("profile written to {}", out.display());
+    if let Some(b) = backup {
+        outln!("the profile it replaces kept as {}", b.display());
+    }
     if let Some(dir) = &args.report {
         outln!("report written to {}", dir.display());
     }

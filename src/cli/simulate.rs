@@ -10,8 +10,8 @@ use pipemeasure::sim::simulate::{
     SfmSource, SimulateOptions, SiteOptions, simulate_lab, simulate_site,
 };
 
-use super::Globals;
 use super::progress::bar;
+use super::{Globals, usage, values};
 
 /// `simulate` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -32,8 +32,9 @@ pub struct Common {
     /// Output folder (frames/, truth.json, sparse/).
     #[arg(long)]
     out: PathBuf,
-    /// Frame width in pixels (intrinsics scale with it; the height follows the 16:9 aspect).
-    #[arg(long, default_value_t = 3840)]
+    /// Frame width in pixels, 64–8192 (intrinsics scale with it; the height follows the 16:9
+    /// aspect).
+    #[arg(long, default_value_t = 3840, value_parser = clap::value_parser!(u32).range(64..=8192))]
     width: u32,
     /// Frame height in pixels (default: from the width).
     #[arg(long)]
@@ -41,26 +42,26 @@ pub struct Common {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Stratified samples per axis at edges (N×N).
-    #[arg(long, default_value_t = 4)]
+    /// Stratified samples per axis at edges (N×N), 1–16.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
     samples: u32,
     /// Supersample every pixel instead of only those with an edge.
     #[arg(long)]
     no_adaptive: bool,
-    /// σ of the Gaussian optical blur (px).
-    #[arg(long, default_value_t = 0.7)]
+    /// σ of the Gaussian optical blur (px, 0 or more).
+    #[arg(long, default_value_t = 0.7, value_parser = values::non_negative)]
     blur: f64,
-    /// Read noise σ (8-bit levels).
-    #[arg(long, default_value_t = 1.0)]
+    /// Read noise σ (8-bit levels, 0 or more).
+    #[arg(long, default_value_t = 1.0, value_parser = values::non_negative)]
     read_noise: f64,
-    /// Shot noise: variance per grey level of signal.
-    #[arg(long, default_value_t = 0.02)]
+    /// Shot noise: variance per grey level of signal (0 or more).
+    #[arg(long, default_value_t = 0.02, value_parser = values::non_negative)]
     shot_noise: f64,
-    /// Brightness loss at the image corners (0–1).
-    #[arg(long, default_value_t = 0.25)]
+    /// Brightness loss at the image corners (0 to below 1).
+    #[arg(long, default_value_t = 0.25, value_parser = values::below_one)]
     vignetting: f64,
-    /// Write JPEG frames with this quality instead of PNG.
-    #[arg(long)]
+    /// Write JPEG frames with this quality (1–100) instead of PNG.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
     /// Sparse model: the simulated stand-in, or the real COLMAP run on the frames.
     #[arg(long, value_enum, default_value = "stand-in")]
@@ -103,8 +104,8 @@ pub struct SiteArgs {
     /// Number of targets on the wall.
     #[arg(long, default_value_t = 8)]
     targets: usize,
-    /// σ of the dense observations (px).
-    #[arg(long, default_value_t = 0.3)]
+    /// σ of the dense observations (px, 0 or more).
+    #[arg(long, default_value_t = 0.3, value_parser = values::non_negative)]
     dense_noise: f64,
     /// Offset added to the TLS coordinates, e.g. 500000,5600000,0 (site coordinates).
     #[arg(long, value_parser = parse_xyz)]
@@ -126,10 +127,10 @@ pub fn parse_xyz(s: &str) -> Result<[f64; 3], String> {
 
 fn options(c: &Common) -> Result<SimulateOptions> {
     let Some(p) = preset(&c.like) else {
-        bail!(
-            "unknown device preset `{}`; presets: p30, iphone11, s10",
+        return Err(usage(format!(
+            "--like {}: unknown device preset; presets: p30, iphone11, s10",
             c.like
-        );
+        )));
     };
     let height = c.height.unwrap_or_else(|| {
         (f64::from(c.width) * f64::from(p.camera.height) / f64::from(p.camera.width)).round() as u32
@@ -179,6 +180,9 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
                 floor: !args.no_floor,
                 ..LabConfig::default()
             };
+            // Every value comes from an option: what the simulator refuses is a usage error.
+            opts.validate().map_err(|e| usage(e.to_string()))?;
+            lab.validate().map_err(|e| usage(e.to_string()))?;
             let progress = bar(args.frames as u64, "rendering", globals.quiet);
             let truth = simulate_lab(&opts, &lab, &args.common.out, &|done| {
                 progress.set_position(done as u64)
@@ -209,6 +213,8 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             if let Some(o) = args.tls_offset {
                 site.tls.offset = o;
             }
+            opts.validate().map_err(|e| usage(e.to_string()))?;
+            site.site.validate().map_err(|e| usage(e.to_string()))?;
             let progress = bar(args.frames as u64, "rendering", globals.quiet);
             let truth = simulate_site(&opts, &site, &args.common.out, &|done| {
                 progress.set_position(done as u64)

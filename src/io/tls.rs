@@ -50,6 +50,7 @@ pub fn read_targets(path: &Path) -> Result<Vec<TlsTarget>, ReadError> {
         ));
     }
     let mut out: Vec<TlsTarget> = Vec::new();
+    let mut ids = std::collections::HashSet::new();
     for (k, line) in lines {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         if f.len() != 4 {
@@ -80,7 +81,7 @@ pub fn read_targets(path: &Path) -> Result<Vec<TlsTarget>, ReadError> {
                     )
                 })?;
         }
-        if f[0].is_empty() || out.iter().any(|t| t.id == f[0]) {
+        if f[0].is_empty() || !ids.insert(f[0]) {
             return Err(ReadError::at_line(
                 path,
                 k + 1,

@@ -20,7 +20,7 @@ use std::path::Path;
 use nalgebra::{Point3, Vector3};
 
 use self::header::{Element, Format, Header, Kind, Scalar, read_header};
-use super::atomic::write_atomic;
+use super::atomic::StagedFile;
 use super::error::{ReadError, ReadErrorKind, WriteError, open_file};
 
 /// A point cloud with optional per-point attributes (each `Some` vector has one entry per point).
@@ -632,6 +632,16 @@ fn parse_token(token: &[u8], t: Scalar, name: &str) -> Result<f64, ReadErrorKind
 /// [`WriteError`] naming the file; also when an attribute vector's length differs from the
 /// number of points.
 pub fn write_binary(path: &Path, cloud: &PointCloud) -> Result<(), WriteError> {
+    stage_binary(path, cloud)?.commit()
+}
+
+/// Writes a cloud as [`write_binary`] does, beside `path`, to be moved into place with the
+/// other outputs of a command ([`StagedFile::commit`]).
+///
+/// # Errors
+///
+/// As [`write_binary`].
+pub fn stage_binary(path: &Path, cloud: &PointCloud) -> Result<StagedFile, WriteError> {
     let n = cloud.points.len();
     let lengths_ok = cloud.normals.as_ref().is_none_or(|v| v.len() == n)
         && cloud.colors.as_ref().is_none_or(|v| v.len() == n)
@@ -664,7 +674,7 @@ pub fn write_binary(path: &Path, cloud: &PointCloud) -> Result<(), WriteError> {
         declare(&["intensity"], Scalar::F32);
     }
     header.push_str("end_header\n");
-    write_atomic(path, |w| {
+    StagedFile::write(path, |w| {
         w.write_all(header.as_bytes())?;
         for (k, p) in cloud.points.iter().enumerate() {
             for v in [p.x, p.y, p.z] {
