@@ -25,6 +25,15 @@ pub struct TlsTarget {
 /// coordinate that is not a finite number, a repeated id.
 pub fn read_targets(path: &Path) -> Result<Vec<TlsTarget>, ReadError> {
     let text = std::fs::read_to_string(path).map_err(|e| open_error(path, e))?;
+    parse_targets(path, &text)
+}
+
+/// Parses the text of a target list (`path` only names it in errors).
+///
+/// # Errors
+///
+/// As [`read_targets`].
+pub fn parse_targets(path: &Path, text: &str) -> Result<Vec<TlsTarget>, ReadError> {
     let mut lines = text
         .lines()
         .enumerate()

@@ -17,6 +17,15 @@ use super::error::{ReadError, ReadErrorKind, WriteError, open_error};
 /// [`ReadError`] naming the byte of a truncated or inconsistent record.
 pub fn read(path: &Path, expected_points: usize) -> Result<Vec<Vec<u32>>, ReadError> {
     let data = std::fs::read(path).map_err(|e| open_error(path, e))?;
+    parse(path, &data, expected_points)
+}
+
+/// Parses a visibility file held in memory (`path` only names it in errors).
+///
+/// # Errors
+///
+/// As [`read`].
+pub fn parse(path: &Path, data: &[u8], expected_points: usize) -> Result<Vec<Vec<u32>>, ReadError> {
     let truncated = |at: usize, what: &str| {
         ReadError::at_byte(path, at as u64, ReadErrorKind::Truncated(what.to_string()))
     };

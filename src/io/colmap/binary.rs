@@ -8,12 +8,12 @@ use std::path::Path;
 use nalgebra::Vector2;
 
 use super::{
-    CameraId, ColmapCamera, ColmapModel, Image, ImageId, ImagesRead, Locations, Point2D, Point3D,
-    Point3dId, Reconstruction, TrackElement, camera_problem,
+    CameraId, ColmapCamera, ColmapModel, Image, ImageId, ImagesRead, Locations, ModelFormat,
+    Point2D, Point3D, Point3dId, Reconstruction, TrackElement, camera_problem,
 };
 use crate::io::Location;
 use crate::io::atomic::write_atomic;
-use crate::io::error::{ReadError, ReadErrorKind, WriteError, open_error};
+use crate::io::error::{ReadError, ReadErrorKind, WriteError};
 
 /// COLMAP's `kInvalidPoint3DId` (u64::MAX) marks an untriangulated 2D point.
 const INVALID_POINT3D: u64 = u64::MAX;
@@ -93,14 +93,18 @@ impl<'a> Reader<'a> {
     }
 }
 
-fn load(path: &Path) -> Result<Vec<u8>, ReadError> {
-    std::fs::read(path).map_err(|e| open_error(path, e))
-}
+/// The format this module reads.
+const FORMAT: ModelFormat = ModelFormat::Binary;
 
-pub(super) fn read(dir: &Path) -> Result<(Reconstruction, Locations), ReadError> {
-    let cameras = read_cameras(&dir.join("cameras.bin"))?;
-    let images = read_images(&dir.join("images.bin"))?;
-    let (points3d, points) = read_points(&dir.join("points3D.bin"))?;
+/// Parses the three files' bytes (cameras, images, points); `dir` names them in errors.
+pub(super) fn parse(
+    dir: &Path,
+    [cameras, images, points]: [&[u8]; 3],
+) -> Result<(Reconstruction, Locations), ReadError> {
+    let [c, i, p] = FORMAT.files().map(|f| dir.join(f));
+    let cameras = read_cameras(&c, cameras)?;
+    let images = read_images(&i, images)?;
+    let (points3d, points) = read_points(&p, points)?;
     Ok((
         Reconstruction {
             cameras,
@@ -114,13 +118,8 @@ pub(super) fn read(dir: &Path) -> Result<(Reconstruction, Locations), ReadError>
     ))
 }
 
-fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadError> {
-    let data = load(path)?;
-    let mut r = Reader {
-        path,
-        data: &data,
-        pos: 0,
-    };
+fn read_cameras(path: &Path, data: &[u8]) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadError> {
+    let mut r = Reader { path, data, pos: 0 };
     let n = r.count("number of cameras", 24)?;
     let mut cameras = BTreeMap::new();
     for _ in 0..n {
@@ -166,15 +165,10 @@ fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadErr
     Ok(cameras)
 }
 
-pub(super) fn read_images(path: &Path) -> Result<ImagesRead, ReadError> {
+pub(super) fn read_images(path: &Path, data: &[u8]) -> Result<ImagesRead, ReadError> {
     let mut order = Vec::new();
     let mut locations = BTreeMap::new();
-    let data = load(path)?;
-    let mut r = Reader {
-        path,
-        data: &data,
-        pos: 0,
-    };
+    let mut r = Reader { path, data, pos: 0 };
     let n = r.count("number of images", 73)?;
     let mut images = BTreeMap::new();
     for _ in 0..n {
@@ -249,13 +243,8 @@ pub(super) fn read_images(path: &Path) -> Result<ImagesRead, ReadError> {
 /// Points by id, and the byte of each record.
 type PointsRead = (BTreeMap<Point3dId, Point3D>, BTreeMap<Point3dId, Location>);
 
-fn read_points(path: &Path) -> Result<PointsRead, ReadError> {
-    let data = load(path)?;
-    let mut r = Reader {
-        path,
-        data: &data,
-        pos: 0,
-    };
+fn read_points(path: &Path, data: &[u8]) -> Result<PointsRead, ReadError> {
+    let mut r = Reader { path, data, pos: 0 };
     let n = r.count("number of points", 43)?;
     let mut points = BTreeMap::new();
     let mut records = BTreeMap::new();

@@ -120,6 +120,22 @@ pub enum ModelFormat {
     Binary,
 }
 
+impl ModelFormat {
+    /// The model's three files in this format: cameras, images, points.
+    #[must_use]
+    pub fn files(self) -> [&'static str; 3] {
+        match self {
+            ModelFormat::Text => ["cameras.txt", "images.txt", "points3D.txt"],
+            ModelFormat::Binary => ["cameras.bin", "images.bin", "points3D.bin"],
+        }
+    }
+}
+
+/// The bytes of a model file.
+fn load(path: &Path) -> Result<Vec<u8>, ReadError> {
+    std::fs::read(path).map_err(|e| super::error::open_error(path, e))
+}
+
 impl Reconstruction {
     /// The model restricted to the images whose flag in `keep` (one per image, in image-id
     /// order) is set: feature tracks shortened to those images, points left with fewer than two
@@ -175,9 +191,11 @@ impl Reconstruction {
     /// As [`Reconstruction::read`].
     pub fn image_file_order(dir: &Path) -> Result<Vec<ImageId>, ReadError> {
         if dir.join("cameras.bin").is_file() {
-            Ok(binary::read_images(&dir.join("images.bin"))?.order)
+            let path = dir.join(ModelFormat::Binary.files()[1]);
+            Ok(binary::read_images(&path, &load(&path)?)?.order)
         } else {
-            Ok(text::read_images(&dir.join("images.txt"))?.order)
+            let path = dir.join(ModelFormat::Text.files()[1]);
+            Ok(text::read_images(&path, &load(&path)?)?.order)
         }
     }
 
@@ -187,15 +205,23 @@ impl Reconstruction {
     ///
     /// As [`Reconstruction::read`].
     pub fn read_format(dir: &Path, format: ModelFormat) -> Result<Self, ReadError> {
+        let [cameras, images, points] = format.files().map(|f| load(&dir.join(f)));
+        Self::parse(dir, format, [&cameras?, &images?, &points?])
+    }
+
+    /// Parses a model held in memory: the bytes of its three files (`cameras`, `images`,
+    /// `points3D`, in that order) in `format`; `dir` names the files in errors. The same checks
+    /// as [`Reconstruction::read`].
+    ///
+    /// # Errors
+    ///
+    /// As [`Reconstruction::read`].
+    pub fn parse(dir: &Path, format: ModelFormat, files: [&[u8]; 3]) -> Result<Self, ReadError> {
         let (model, locations) = match format {
-            ModelFormat::Text => text::read(dir)?,
-            ModelFormat::Binary => binary::read(dir)?,
+            ModelFormat::Text => text::parse(dir, files)?,
+            ModelFormat::Binary => binary::parse(dir, files)?,
         };
-        let ext = match format {
-            ModelFormat::Text => "txt",
-            ModelFormat::Binary => "bin",
-        };
-        model.check_references(dir, ext, &locations)?;
+        model.check_references(dir, format, &locations)?;
         Ok(model)
     }
 
@@ -217,11 +243,13 @@ impl Reconstruction {
     fn check_references(
         &self,
         dir: &Path,
-        ext: &str,
+        format: ModelFormat,
         locations: &Locations,
     ) -> Result<(), ReadError> {
-        let images_file = dir.join(format!("images.{ext}"));
-        let points_file = dir.join(format!("points3D.{ext}"));
+        let [cameras, images, points] = format.files();
+        let ext = &cameras[cameras.len() - 3..];
+        let images_file = dir.join(images);
+        let points_file = dir.join(points);
         let at = |path: &Path, location: Option<&Location>, message: String| ReadError {
             path: path.to_path_buf(),
             location: location.copied(),

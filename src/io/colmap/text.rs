@@ -1,18 +1,17 @@
 //! COLMAP's text model format (`cameras.txt`, `images.txt`, `points3D.txt`).
 
-use std::fs;
 use std::io::Write;
 use std::path::Path;
 
 use nalgebra::Vector2;
 
 use super::{
-    CameraId, ColmapCamera, ColmapModel, Image, ImageId, ImagesRead, Locations, Point2D, Point3D,
-    Point3dId, Reconstruction, TrackElement, camera_problem,
+    CameraId, ColmapCamera, ColmapModel, Image, ImageId, ImagesRead, Locations, ModelFormat,
+    Point2D, Point3D, Point3dId, Reconstruction, TrackElement, camera_problem,
 };
 use crate::io::Location;
 use crate::io::atomic::write_atomic;
-use crate::io::error::{ReadError, ReadErrorKind, WriteError, open_error};
+use crate::io::error::{ReadError, ReadErrorKind, WriteError};
 
 /// A text file being parsed: path and the current 1-based line, for errors.
 struct Cursor<'a> {
@@ -59,12 +58,17 @@ impl Cursor<'_> {
     }
 }
 
-fn read_text(path: &Path) -> Result<String, ReadError> {
-    let bytes = fs::read(path).map_err(|e| open_error(path, e))?;
-    String::from_utf8(bytes).map_err(|_| {
-        ReadError::new(
+/// The text of a file's bytes (`path` names it in errors).
+fn text_of<'a>(path: &Path, bytes: &'a [u8]) -> Result<&'a str, ReadError> {
+    std::str::from_utf8(bytes).map_err(|e| {
+        let line = 1 + bytes[..e.valid_up_to()]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        ReadError::at_line(
             path,
-            ReadErrorKind::Invalid("file is not UTF-8 text".into()),
+            line,
+            ReadErrorKind::Invalid("the file is not UTF-8 text".into()),
         )
     })
 }
@@ -75,10 +79,18 @@ fn is_data(line: &str) -> bool {
     !t.is_empty() && !t.starts_with('#')
 }
 
-pub(super) fn read(dir: &Path) -> Result<(Reconstruction, Locations), ReadError> {
-    let cameras = read_cameras(&dir.join("cameras.txt"))?;
-    let images = read_images(&dir.join("images.txt"))?;
-    let (points3d, points) = read_points(&dir.join("points3D.txt"))?;
+/// The format this module reads.
+const FORMAT: ModelFormat = ModelFormat::Text;
+
+/// Parses the three files' bytes (cameras, images, points); `dir` names them in errors.
+pub(super) fn parse(
+    dir: &Path,
+    [cameras, images, points]: [&[u8]; 3],
+) -> Result<(Reconstruction, Locations), ReadError> {
+    let [c, i, p] = FORMAT.files().map(|f| dir.join(f));
+    let cameras = read_cameras(&c, cameras)?;
+    let images = read_images(&i, images)?;
+    let (points3d, points) = read_points(&p, points)?;
     Ok((
         Reconstruction {
             cameras,
@@ -94,8 +106,9 @@ pub(super) fn read(dir: &Path) -> Result<(Reconstruction, Locations), ReadError>
 
 fn read_cameras(
     path: &Path,
+    bytes: &[u8],
 ) -> Result<std::collections::BTreeMap<CameraId, ColmapCamera>, ReadError> {
-    let text = read_text(path)?;
+    let text = text_of(path, bytes)?;
     let mut cameras = std::collections::BTreeMap::new();
     for (k, line) in text.lines().enumerate() {
         let cur = Cursor { path, line: k + 1 };
@@ -146,10 +159,10 @@ fn read_cameras(
     Ok(cameras)
 }
 
-pub(super) fn read_images(path: &Path) -> Result<ImagesRead, ReadError> {
+pub(super) fn read_images(path: &Path, bytes: &[u8]) -> Result<ImagesRead, ReadError> {
     let mut order = Vec::new();
     let mut locations = std::collections::BTreeMap::new();
-    let text = read_text(path)?;
+    let text = text_of(path, bytes)?;
     let mut images = std::collections::BTreeMap::new();
     let mut lines = text.lines().enumerate();
     while let Some((k, line)) = lines.next() {
@@ -248,8 +261,8 @@ type PointsRead = (
     std::collections::BTreeMap<Point3dId, Location>,
 );
 
-fn read_points(path: &Path) -> Result<PointsRead, ReadError> {
-    let text = read_text(path)?;
+fn read_points(path: &Path, bytes: &[u8]) -> Result<PointsRead, ReadError> {
+    let text = text_of(path, bytes)?;
     let mut points = std::collections::BTreeMap::new();
     let mut lines_of = std::collections::BTreeMap::new();
     for (k, line) in text.lines().enumerate() {
