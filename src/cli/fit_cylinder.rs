@@ -95,7 +95,8 @@ pub(super) fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>> {
             read.skipped_non_finite
         );
     }
-    Ok(read.cloud.points.iter().map(|p| p.coords).collect())
+    // In place: a point and its coordinate vector have the same layout, so no second copy.
+    Ok(read.cloud.points.into_iter().map(|p| p.coords).collect())
 }
 
 #[derive(Serialize)]

@@ -62,7 +62,8 @@ fn read_from<T: std::io::Read + std::io::Seek>(
     })
 }
 
-/// Reads a cloud by its extension: `.e57` through [`read`], anything else as PLY.
+/// Reads the points of a cloud by its extension: `.e57` through [`read`], anything else as PLY
+/// through [`super::ply::read_points`] (coordinates only, as measuring needs).
 ///
 /// # Errors
 ///
@@ -74,7 +75,7 @@ pub fn read_cloud(path: &Path) -> Result<PlyRead, ReadError> {
     if is_e57 {
         read(path)
     } else {
-        super::ply::read(path)
+        super::ply::read_points(path)
     }
 }
 

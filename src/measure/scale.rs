@@ -83,7 +83,7 @@ pub enum ScaleError {
     Degenerate(f64),
     /// More TLS targets than the association handles.
     #[error(
-        "{found} TLS targets: the automatic association handles at most {max} (its time grows with the square of the list); give this site's targets with --tls-ids or a shorter list"
+        "{found} TLS targets: the automatic association handles at most {max} (its time grows faster than the square of the list); give this site's targets with --tls-ids or a shorter list"
     )]
     TooManyTls {
         /// TLS targets given.
@@ -94,8 +94,9 @@ pub enum ScaleError {
 }
 
 /// The longest TLS list the automatic association takes: its time grows with the square of the
-/// list (about a second for 2,000 targets on two cores), and a site's video sees a few dozen.
-pub const MAX_TLS_TARGETS: usize = 10_000;
+/// list and the targets around each (seconds for 2,000 targets on two cores when no complete
+/// association exists), and a site's video sees a few dozen.
+pub const MAX_TLS_TARGETS: usize = 5_000;
 
 impl ScaleError {
     /// Whether the error says that nothing was found (no reconstructed targets, no association)
@@ -417,15 +418,22 @@ impl Candidate {
     }
 }
 
+/// Seed triangles compared per pass over the TLS list (each pass sorts every target's
+/// neighbours once); the search stops after the first pass that associates every target.
+const TRIANGLES_PER_PASS: usize = 8;
+
 /// Consensus association (module docs): (reconstructed, TLS) pairs, at most one per target.
 ///
 /// Every seed triangle (i, j, k) is compared with every TLS triple (a, b, c) whose sides agree
-/// with it at the scale `|ab| / |ij|`, which is at most quadratic in the TLS list: per TLS
+/// with it at the scale `|ab| / |ij|`, quadratic in the TLS list plus the candidates: per TLS
 /// target `a`, the others sorted by their distance to it; walking `b` outwards, the `c` with
 /// `|ac| ≈ |ab|·|ik|/|ij|` lie in a window of that list that only moves outwards (two
-/// pointers), so each (a, triangle) costs one pass over the list plus its candidates. Each
-/// consistent triple's similarity is scored through a k-d tree of the TLS targets. Was cubic
-/// (every ordered TLS triple per triangle): a 2,008-target list took more than a minute.
+/// pointers), so each (a, triangle) costs one pass over the list plus the targets in its
+/// windows. Each consistent triple's similarity is scored through a k-d tree of the TLS
+/// targets. The triangles go in passes of [`TRIANGLES_PER_PASS`], most-viewed seeds first, and
+/// the search stops once a pass has associated every reconstructed target: no later triangle
+/// can associate more. (Was cubic, every ordered TLS triple per triangle: a 2,008-target list
+/// took more than a minute.)
 fn associate(
     reconstructed: &[ReconstructedTarget],
     by_views: &[usize],
@@ -438,7 +446,9 @@ fn associate(
     let triangles = seed_triangles(reconstructed, seeds);
     let index = TlsIndex::new(tls);
     let m = tls.len();
-    let best_from = |a: usize| -> Option<Candidate> {
+    let complete = reconstructed.len().min(m);
+    // The best candidate with `a` as the image of vertex i, over triangles `first..`.
+    let best_from = |a: usize, first: usize, pass: &[SeedTriangle]| -> Option<Candidate> {
         // The other TLS targets by distance to `a`.
         let mut around: Vec<(f64, usize)> = (0..m)
             .filter(|&b| b != a)
@@ -446,7 +456,7 @@ fn associate(
             .collect();
         around.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
         let mut best: Option<Candidate> = None;
-        for (t, tri) in triangles.iter().enumerate() {
+        for (t, tri) in pass.iter().enumerate() {
             let (mut lo, mut hi) = (0, 0);
             for &(dab, b) in &around {
                 let s = dab / tri.dij;
@@ -461,9 +471,9 @@ fn associate(
                 // |bc| within tol of s·|jk|, compared squared (no square root per candidate).
                 let want_bc = s * tri.djk;
                 let (bc_lo, bc_hi) = ((want_bc - tol).max(0.0).powi(2), (want_bc + tol).powi(2));
-                for &(dac, c) in &around[lo..hi] {
+                for &(_, c) in &around[lo..hi] {
                     let bc2 = (tls[b] - tls[c]).norm_squared();
-                    if c == b || (dac - want).abs() > tol || bc2 < bc_lo || bc2 > bc_hi {
+                    if c == b || bc2 < bc_lo || bc2 > bc_hi {
                         continue;
                     }
                     let Some(sim) = local_similarity(&tri.points, &[tls[a], tls[b], tls[c]]) else {
@@ -473,7 +483,7 @@ fn associate(
                     let candidate = Candidate {
                         pairs,
                         ss,
-                        key: (t, a, b, c),
+                        key: (first + t, a, b, c),
                     };
                     if best.as_ref().is_none_or(|b| candidate.beats(b)) {
                         best = Some(candidate);
@@ -483,10 +493,22 @@ fn associate(
         }
         best
     };
-    let best = (0..m)
-        .into_par_iter()
-        .filter_map(best_from)
-        .reduce_with(|x, y| if y.beats(&x) { y } else { x });
+    let mut best: Option<Candidate> = None;
+    for (k, pass) in triangles.chunks(TRIANGLES_PER_PASS).enumerate() {
+        let first = k * TRIANGLES_PER_PASS;
+        let found = (0..m)
+            .into_par_iter()
+            .filter_map(|a| best_from(a, first, pass))
+            .reduce_with(|x, y| if y.beats(&x) { y } else { x });
+        if let Some(f) = found
+            && best.as_ref().is_none_or(|b| f.beats(b))
+        {
+            best = Some(f);
+        }
+        if best.as_ref().is_some_and(|b| b.pairs.len() >= complete) {
+            break;
+        }
+    }
     let mut best = best.map_or_else(Vec::new, |c| c.pairs);
     // Refine on the whole consensus once (the triple's similarity carries the triple's noise).
     if best.len() >= 3 {
@@ -680,8 +702,8 @@ mod tests {
         assert!(matches!(
             estimate_scale(&reconstructed, &long, &ScaleConfig::default()),
             Err(ScaleError::TooManyTls {
-                found: 10_001,
-                max: 10_000
+                found: 5_001,
+                max: 5_000
             })
         ));
     }

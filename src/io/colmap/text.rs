@@ -437,7 +437,7 @@ mod tests {
                 .iter()
                 .find(|(n, _)| *n == name)
                 .map_or(content, |(_, c)| *c);
-            fs::write(dir.path().join(name), content).unwrap();
+            std::fs::write(dir.path().join(name), content).unwrap();
         }
         dir
     }

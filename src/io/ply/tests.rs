@@ -164,6 +164,8 @@ fn write_then_read_round_trips_exactly() {
     write_binary(&p, &cloud).unwrap();
     let back = read(&p).unwrap();
     assert_eq!(back.cloud, cloud);
+    let points = read_points(&p).unwrap();
+    assert_eq!(points.cloud, PointCloud::from_points(cloud.points.clone()));
     let bytes = std::fs::read(&p).unwrap();
     let header = b"ply\nformat binary_little_endian 1.0\ncomment written by pipemeasure\nelement vertex 2\nproperty double x\nproperty double y\nproperty double z\nproperty float nx\nproperty float ny\nproperty float nz\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nproperty float intensity\nend_header\n";
     assert!(bytes.starts_with(header));
