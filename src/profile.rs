@@ -296,11 +296,24 @@ impl Profile {
         if self.device.trim().is_empty() {
             return Err(invalid("device", "is empty".into()));
         }
-        if self.image.width == 0 {
-            return Err(invalid("image.width", "must be positive".into()));
+        use crate::io::frames::{MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX};
+        for (field, v) in [
+            ("image.width", self.image.width),
+            ("image.height", self.image.height),
+        ] {
+            if !(1..=MAX_FRAME_SIDE_PX).contains(&v) {
+                return Err(invalid(
+                    field,
+                    format!("is {v}, expected 1 to {MAX_FRAME_SIDE_PX} px"),
+                ));
+            }
         }
-        if self.image.height == 0 {
-            return Err(invalid("image.height", "must be positive".into()));
+        let pixels = u64::from(self.image.width) * u64::from(self.image.height);
+        if pixels > MAX_FRAME_PIXELS {
+            return Err(invalid(
+                "image",
+                format!("is {pixels} pixels, more than the {MAX_FRAME_PIXELS} a frame may have"),
+            ));
         }
         for term in Term::ALL {
             let v = self.intrinsics.get(term);
@@ -665,6 +678,13 @@ mod tests {
         );
         let e = error_for(|v| v["image"]["width"] = 0.into());
         assert!(e.contains("image.width"), "{e}");
+        let e = error_for(|v| v["image"]["height"] = 4_000_000_000u32.into());
+        assert!(
+            e.contains("field `image.height` is 4000000000, expected 1 to 65535 px"),
+            "{e}"
+        );
+        let e = error_for(|v| v["image"]["width"] = 60_000.into());
+        assert!(e.contains("field `image` is 129600000 pixels"), "{e}");
         let e = error_for(|v| v["schema"] = "pipemeasure.profile/9".into());
         assert!(e.contains("field `schema`"), "{e}");
         let e = error_for(|v| v["terms"] = serde_json::json!(["c", "k9"]));
