@@ -42,8 +42,8 @@ pub struct ScaleConfig {
     /// The TLS targets' coordinate standard deviation (m) per axis, used for the scale's
     /// standard deviation when only two targets are given (no redundancy). Default 1 mm.
     pub target_sigma_m: f64,
-    /// Reconstructed targets (most views first) whose triangles seed the association.
-    /// Default 10.
+    /// Reconstructed targets (most views first) whose triangles seed the association, 3 to
+    /// [`MAX_SEEDS`]. Default 10.
     pub seeds: usize,
 }
 
@@ -202,13 +202,13 @@ pub fn estimate_scale(
     let (associated, assumed) = if tls.len() == 2 {
         (vec![(by_views[0], 0), (by_views[1], 1)], true)
     } else {
-        let a = associate(reconstructed, &by_views, tls, config);
         // Three pairs only say that two triangles are similar; a fourth target verifies it.
         let required = if tls.len().min(reconstructed.len()) >= 4 {
             4
         } else {
             3
         };
+        let a = associate(reconstructed, &by_views, tls, config, required);
         if a.len() < required {
             return Err(ScaleError::NoAssociation {
                 found: a.len(),
@@ -307,15 +307,65 @@ struct SeedTriangle {
     dij: f64,
     djk: f64,
     dik: f64,
+    /// Which seeds (positions in the seed list) it is made of, as a bit mask.
+    seeds: u64,
 }
 
-/// The well-shaped triangles of the seeds (no side under a fifth of the longest), in the order
-/// of the seeds.
+/// The well-shaped triangles of the seeds (no side under a fifth of the longest), ordered so
+/// that the seeds are used evenly: each next triangle is one whose seeds have been used least
+/// so far (ties: the best-seen seeds first). A few triangles then avoid any one seed, which
+/// lets [`search_is_complete`] stop early when one seed is a target the TLS list lacks.
 fn seed_triangles(reconstructed: &[ReconstructedTarget], seeds: &[usize]) -> Vec<SeedTriangle> {
+    let mut all = well_shaped_triangles(reconstructed, seeds);
+    let mut used = vec![0usize; seeds.len()];
+    let mut out = Vec::with_capacity(all.len());
+    while !all.is_empty() {
+        let uses = |t: &SeedTriangle| -> usize {
+            (0..seeds.len())
+                .filter(|&s| t.seeds >> s & 1 == 1)
+                .map(|s| used[s])
+                .sum()
+        };
+        let next = (0..all.len())
+            .min_by_key(|&k| (uses(&all[k]), k))
+            .unwrap_or(0);
+        let t = all.remove(next);
+        for (s, u) in used.iter_mut().enumerate() {
+            *u += (t.seeds >> s & 1) as usize;
+        }
+        out.push(t);
+    }
+    out
+}
+
+/// Whether no association left unseen can match `best` targets: every association holds at
+/// most `non_seeds` targets that are not seeds, so one with `best` targets holds at least
+/// `best − non_seeds` seeds, and it has been seen if any triangle tried so far (`tried`, seed
+/// bit masks) lies within those seeds (the triangle's TLS triple proposes it). Exact over the
+/// subsets of at most 16 seeds; with more, only a complete association stops the search.
+fn search_is_complete(tried: &[u64], n_seeds: usize, non_seeds: usize, best: usize) -> bool {
+    let need = best.saturating_sub(non_seeds);
+    if need < 3 || need > n_seeds {
+        return need > n_seeds;
+    }
+    if n_seeds > 16 {
+        return best >= n_seeds + non_seeds;
+    }
+    // A set of `need` seeds with no tried triangle inside is an association not yet seen.
+    (0u64..1 << n_seeds)
+        .filter(|m| m.count_ones() as usize == need)
+        .all(|m| tried.iter().any(|&t| t & !m == 0))
+}
+
+/// The well-shaped triangles of the seeds, in the order of the seeds.
+fn well_shaped_triangles(
+    reconstructed: &[ReconstructedTarget],
+    seeds: &[usize],
+) -> Vec<SeedTriangle> {
     let mut out = Vec::new();
-    for (x, &i) in seeds.iter().enumerate() {
-        for (y, &j) in seeds.iter().enumerate().skip(x + 1) {
-            for &k in &seeds[y + 1..] {
+    for (si, &i) in seeds.iter().enumerate() {
+        for (sj, &j) in seeds.iter().enumerate().skip(si + 1) {
+            for (sk, &k) in seeds.iter().enumerate().skip(sj + 1) {
                 let p = [i, j, k].map(|q| reconstructed[q].point);
                 let (dij, djk, dik) = (
                     (p[0] - p[1]).norm(),
@@ -348,6 +398,7 @@ fn seed_triangles(reconstructed: &[ReconstructedTarget], seeds: &[usize]) -> Vec
                     dij: (q[0] - q[1]).norm(),
                     djk: (q[1] - q[2]).norm(),
                     dik: (q[0] - q[2]).norm(),
+                    seeds: 1 << si | 1 << sj | 1 << sk,
                 });
             }
         }
@@ -418,8 +469,11 @@ impl Candidate {
     }
 }
 
+/// The most seeds the association uses (their subsets are bit masks).
+pub const MAX_SEEDS: usize = 64;
+
 /// Seed triangles compared per pass over the TLS list (each pass sorts every target's
-/// neighbours once); the search stops after the first pass that associates every target.
+/// neighbours once); between passes the search may stop ([`associate`]).
 const TRIANGLES_PER_PASS: usize = 8;
 
 /// Consensus association (module docs): (reconstructed, TLS) pairs, at most one per target.
@@ -430,19 +484,21 @@ const TRIANGLES_PER_PASS: usize = 8;
 /// `|ac| ≈ |ab|·|ik|/|ij|` lie in a window of that list that only moves outwards (two
 /// pointers), so each (a, triangle) costs one pass over the list plus the targets in its
 /// windows. Each consistent triple's similarity is scored through a k-d tree of the TLS
-/// targets. The triangles go in passes of [`TRIANGLES_PER_PASS`], most-viewed seeds first, and
-/// the search stops once a pass has associated every reconstructed target: no later triangle
-/// can associate more. (Was cubic, every ordered TLS triple per triangle: a 2,008-target list
-/// took more than a minute.)
+/// targets. The triangles go in passes of [`TRIANGLES_PER_PASS`], their seeds used evenly
+/// ([`seed_triangles`]), and the search stops once a pass has associated every reconstructed
+/// target, or once no association as large as the best can have escaped the triangles tried
+/// ([`search_is_complete`]). (Was cubic, every ordered TLS triple per triangle: a 2,008-target
+/// list took more than a minute.)
 fn associate(
     reconstructed: &[ReconstructedTarget],
     by_views: &[usize],
     tls: &[Point3<f64>],
     config: &ScaleConfig,
+    required: usize,
 ) -> Vec<(usize, usize)> {
     let spacing = median_spacing(tls);
     let tol = config.tolerance * spacing;
-    let seeds = &by_views[..by_views.len().min(config.seeds.max(3))];
+    let seeds = &by_views[..by_views.len().min(config.seeds.clamp(3, MAX_SEEDS))];
     let triangles = seed_triangles(reconstructed, seeds);
     let index = TlsIndex::new(tls);
     let m = tls.len();
@@ -494,6 +550,7 @@ fn associate(
         best
     };
     let mut best: Option<Candidate> = None;
+    let non_seeds = reconstructed.len() - seeds.len();
     for (k, pass) in triangles.chunks(TRIANGLES_PER_PASS).enumerate() {
         let first = k * TRIANGLES_PER_PASS;
         let found = (0..m)
@@ -505,7 +562,16 @@ fn associate(
         {
             best = Some(f);
         }
-        if best.as_ref().is_some_and(|b| b.pairs.len() >= complete) {
+        let tried: Vec<u64> = triangles[..first + pass.len()]
+            .iter()
+            .map(|t| t.seeds)
+            .collect();
+        // Below `required` the caller refuses the association anyway: what matters is whether an
+        // unseen one could reach it.
+        let count = best.as_ref().map_or(0, |b| b.pairs.len());
+        if count >= complete
+            || search_is_complete(&tried, seeds.len(), non_seeds, count.max(required))
+        {
             break;
         }
     }
@@ -706,6 +772,32 @@ mod tests {
                 max: 5_000
             })
         ));
+    }
+
+    #[test]
+    fn the_search_stops_only_when_no_unseen_association_can_match_the_best() {
+        let t = |a: u32, b: u32, c: u32| 1u64 << a | 1 << b | 1 << c;
+        // Four seeds, all four triangles tried: any 3 seeds hold one.
+        let all = [t(0, 1, 2), t(0, 1, 3), t(0, 2, 3), t(1, 2, 3)];
+        assert!(search_is_complete(&all, 4, 0, 3));
+        // Only the triangles with seed 0: {1, 2, 3} is unseen.
+        assert!(!search_is_complete(&all[..3], 4, 0, 3));
+        // Best 4 of 4 seeds: every set of 4 holds a tried triangle.
+        assert!(search_is_complete(&all[..1], 4, 0, 4));
+        // Two targets that are no seed: a best of 4 needs only 2 seeds, never certain.
+        assert!(!search_is_complete(&all, 4, 2, 4));
+        // More than the seeds can give: nothing unseen can tie.
+        assert!(search_is_complete(&[], 4, 1, 6));
+        // The spread order puts a triangle without seed 0 early.
+        let world = wall_targets();
+        let targets: Vec<ReconstructedTarget> = world
+            .iter()
+            .map(|&p| ReconstructedTarget { point: p, views: 5 })
+            .collect();
+        let seeds: Vec<usize> = (0..8).collect();
+        let order = seed_triangles(&targets, &seeds);
+        assert_eq!(order.len(), well_shaped_triangles(&targets, &seeds).len());
+        assert!(order[..3].iter().any(|tri| tri.seeds & 1 == 0));
     }
 
     #[test]
