@@ -108,21 +108,8 @@ pub struct SiteArgs {
     #[arg(long, default_value_t = 0.3, value_parser = values::non_negative)]
     dense_noise: f64,
     /// Offset added to the TLS coordinates, e.g. 500000,5600000,0 (site coordinates).
-    #[arg(long, value_parser = parse_xyz)]
-    tls_offset: Option<[f64; 3]>,
-}
-
-/// Parses `X,Y,Z`.
-pub fn parse_xyz(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("`{s}`: {e}"))?;
-    match v.as_slice() {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
-        _ => Err(format!("`{s}`: expected three numbers X,Y,Z")),
-    }
+    #[arg(long, value_parser = values::point)]
+    tls_offset: Option<nalgebra::Vector3<f64>>,
 }
 
 fn options(c: &Common) -> Result<SimulateOptions> {
@@ -211,7 +198,7 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             site.site.targets = args.targets;
             site.dense.noise_px = args.dense_noise;
             if let Some(o) = args.tls_offset {
-                site.tls.offset = o;
+                site.tls.offset = o.into();
             }
             opts.validate().map_err(|e| usage(e.to_string()))?;
             site.site.validate().map_err(|e| usage(e.to_string()))?;

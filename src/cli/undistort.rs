@@ -8,7 +8,7 @@ use pipemeasure::calibrate::checks::check_distortion;
 use pipemeasure::camera::undistort_map::{Interpolation, OutputView, RemapTable, pinhole_for_view};
 use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
 use pipemeasure::io::colmap::{CameraId, ColmapCamera, ColmapModel, write_cameras_text};
-use pipemeasure::io::frames::{frame_size, list_frames, read_frame_sized, write_png};
+use pipemeasure::io::frames::{first_of_another_size, list_frames, read_frame_sized, write_png};
 use pipemeasure::profile::load_device;
 use rayon::prelude::*;
 
@@ -56,18 +56,17 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     check_writable_dir(&args.output)?;
 
     // Every frame's size from its header before anything is decoded or written.
-    for f in &frames {
-        let (w, h) = frame_size(f).context("reading the size of a frame")?;
-        if (w, h) != size {
-            bail!(
-                "frame {} is {w}x{h} but device profile {} ({}) is for {}x{} frames",
-                f.display(),
-                profile.device,
-                profile_path.display(),
-                camera.width,
-                camera.height
-            );
-        }
+    if let Some((f, (w, h))) =
+        first_of_another_size(&frames, size).context("reading the size of a frame")?
+    {
+        bail!(
+            "frame {} is {w}x{h} but device profile {} ({}) is for {}x{} frames",
+            f.display(),
+            profile.device,
+            profile_path.display(),
+            camera.width,
+            camera.height
+        );
     }
     // A distortion that folds back inside the frame cannot be inverted there: the undistorted
     // frames would be black where it folds (all black when it folds everywhere).

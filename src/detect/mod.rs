@@ -462,18 +462,15 @@ pub fn detect_frame_files(
     use rayon::prelude::*;
     Detector::new(config.clone())?;
     // Every header first: a frame of another size fails before minutes of detection.
-    for path in paths {
-        let found = crate::io::frames::frame_size(path)?;
-        if found != size {
-            return Err(crate::io::ReadError::new(
-                path,
-                crate::io::ReadErrorKind::Invalid(format!(
-                    "the frame is {}x{} but the model's camera is {}x{}: the frames and the model do not belong together",
-                    found.0, found.1, size.0, size.1
-                )),
-            )
-            .into());
-        }
+    if let Some((path, found)) = crate::io::frames::first_of_another_size(paths, size)? {
+        return Err(crate::io::ReadError::new(
+            path,
+            crate::io::ReadErrorKind::Invalid(format!(
+                "the frame is {}x{} but the model's camera is {}x{}: the frames and the model do not belong together",
+                found.0, found.1, size.0, size.1
+            )),
+        )
+        .into());
     }
     paths
         .par_iter()

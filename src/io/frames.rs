@@ -115,6 +115,28 @@ pub fn frame_size(path: &Path) -> Result<(u32, u32), ReadError> {
         .map_err(|e| ReadError::new(path, ReadErrorKind::Image(e)))
 }
 
+/// A frame and the size its header gives.
+pub type SizedFrame<'a> = (&'a Path, (u32, u32));
+
+/// The first of `paths` whose header gives another size than `size`, with that size: every
+/// frame checked from its header before any is decoded.
+///
+/// # Errors
+///
+/// As [`frame_size`], for the first file whose header cannot be read.
+pub fn first_of_another_size(
+    paths: &[PathBuf],
+    size: (u32, u32),
+) -> Result<Option<SizedFrame<'_>>, ReadError> {
+    for path in paths {
+        let found = frame_size(path)?;
+        if found != size {
+            return Ok(Some((path, found)));
+        }
+    }
+    Ok(None)
+}
+
 /// Decodes a frame held in memory (`path` names it in errors) with the product's limits: the
 /// size in the header is checked first — against `expected` when given, otherwise against
 /// [`MAX_FRAME_PIXELS`] — and the decoder's memory limit is what a frame of that size needs; a
