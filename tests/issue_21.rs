@@ -400,6 +400,16 @@ fn issue_21_undistort_is_all_or_nothing_and_refuses_a_folding_distortion() {
         "{stderr}"
     );
     assert!(!dir.path().join("folded").exists());
+    // `profile show` shows it, and says so; an invertible profile gets no such warning.
+    let (code, _, stderr) = pipemeasure(dir.path(), &["profile", "show", &good], &[]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(!stderr.contains("`undistort` refuses"), "{stderr}");
+    let (code, _, stderr) = pipemeasure(dir.path(), &["profile", "show", &folding], &[]);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stderr.contains("warning") && stderr.contains("`undistort` refuses this profile"),
+        "{stderr}"
+    );
 }
 
 /// `match` used frames of another size than the model's camera (and decoded a 16000×16000
