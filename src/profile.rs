@@ -135,9 +135,26 @@ pub struct Profile {
     /// Image observations used.
     #[serde(default)]
     pub observations: usize,
+    /// The rolling shutter: the device's readout time, when the calibration modelled it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rolling_shutter: Option<ReadoutTime>,
     /// Where the profile came from (tool, version, command, data, date, notes).
     #[serde(default)]
     pub provenance: BTreeMap<String, serde_json::Value>,
+}
+
+/// A rolling-shutter device's readout time: from the exposure of the top row to that of the
+/// bottom row of a frame of [`Profile::image`]'s size.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReadoutTime {
+    /// Readout time (s).
+    pub readout_s: f64,
+    /// Its standard deviation (s); 0 when it was given, not estimated.
+    pub readout_std_s: f64,
+    /// Whether the calibration estimated it (video frames with their neighbours), or held
+    /// it at a given value.
+    pub estimated: bool,
 }
 
 /// Why a profile could not be found, read or accepted.
@@ -208,6 +225,7 @@ impl Profile {
             images: 0,
             targets: 0,
             observations: 0,
+            rolling_shutter: None,
             provenance,
         }
     }
@@ -350,6 +368,20 @@ impl Profile {
                     1.0 / MIN_PIXEL_ASPECT
                 ),
             ));
+        }
+        if let Some(r) = &self.rolling_shutter {
+            if !(r.readout_s.is_finite() && r.readout_s >= 0.0 && r.readout_s < 1.0) {
+                return Err(invalid(
+                    "rolling_shutter.readout_s",
+                    format!("is {}, expected a time in [0, 1) s", r.readout_s),
+                ));
+            }
+            if !(r.readout_std_s.is_finite() && r.readout_std_s >= 0.0) {
+                return Err(invalid(
+                    "rolling_shutter.readout_std_s",
+                    format!("is {}, expected a finite value ≥ 0", r.readout_std_s),
+                ));
+            }
         }
         let mut seen = std::collections::BTreeSet::new();
         for t in &self.terms {

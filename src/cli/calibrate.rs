@@ -23,8 +23,8 @@ use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
 use pipemeasure::io::colmap::{ModelFormat, Reconstruction, run_colmap_sfm};
 use pipemeasure::profile::{
-    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, StdDev, backup_path,
-    validate_device_name,
+    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, ReadoutTime, StdDev,
+    backup_path, validate_device_name,
 };
 use pipemeasure::report::plots;
 use serde::Serialize;
@@ -183,6 +183,8 @@ struct ReportJson<'a> {
     iterations: &'a [pipemeasure::calibrate::pipeline::LoopRecord],
     converged: bool,
     stop_reason: &'a str,
+    /// The selection's alternation between two term sets and how the loop settled it.
+    term_alternation: Option<&'a pipemeasure::calibrate::pipeline::TermAlternation>,
     /// Frames (by name) in the final adjustment; the others saw too few targets.
     adjusted_frames: Vec<&'a str>,
     redundancy: usize,
@@ -265,6 +267,11 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
         images: cal.frame_names.len(),
         targets: cal.points.len(),
         observations: cal.observations.len(),
+        rolling_shutter: cal.rolling_shutter.as_ref().map(|r| ReadoutTime {
+            readout_s: r.readout_s,
+            readout_std_s: r.readout_std_s,
+            estimated: r.estimated,
+        }),
         provenance,
     }
 }
@@ -408,6 +415,19 @@ fn write_report(
             " (not converged)"
         }
     );
+    if let Some(a) = &cal.term_alternation {
+        md += &format!(
+            "At iteration {} the term selection alternated between {} (BIC {:.1}) and {} (BIC {:.1}); {} was kept (lower BIC) for the rest of the loop. The two cameras differ by {:.4} px at most over the frame ({:.2} × the projection σ).\n\n",
+            a.iteration,
+            a.sets[0],
+            a.bic[0],
+            a.sets[1],
+            a.bic[1],
+            a.kept,
+            a.camera_difference_px,
+            a.camera_difference_ratio
+        );
+    }
     if cal.adjusted_frames.len() < cal.frame_names.len() {
         md += &format!(
             "{} of the {} frames saw too few matched targets to enter the adjustment.\n\n",
@@ -668,6 +688,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             iterations: &cal.iterations,
             converged: cal.converged,
             stop_reason: &cal.stop_reason,
+            term_alternation: cal.term_alternation.as_ref(),
             adjusted_frames: cal
                 .adjusted_frames
                 .iter()
