@@ -172,6 +172,12 @@ def small_corpora():
     j = json.loads(p30)
     j["intrinsics"]["b1"] = -j["intrinsics"]["c"]
     put("profile", "fx_zero.json", json.dumps(j, indent=2))
+    j = json.loads(p30)
+    j["intrinsics"]["k1"] = -5.0
+    put("profile", "folding.json", json.dumps(j, indent=2))
+    j = json.loads(p30)
+    j["rolling_shutter"] = {"readout_s": 0.02, "readout_std_s": 0.0001, "estimated": True}
+    put("profile", "rolling_shutter.json", json.dumps(j, indent=2))
     put("profile", "minimal.json", b'{"schema":"pipemeasure.profile/1","device":"d","image":{"width":64,"height":48},"model":"brown","terms":[],"intrinsics":{"c":50,"u0":32,"v0":24,"k1":0,"k2":0,"k3":0,"p1":0,"p2":0,"b1":0,"b2":0}}')
 
     put("tls_targets", "site.csv", "id,x,y,z\n1,500000.1,5600000.2,100.3\n2,500001.5,5600000.0,101.25\nT3,499999.0,5600002.0,99.0\n# a comment\n\n4,500000.5,5600001.5,100.0\n")

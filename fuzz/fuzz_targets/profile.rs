@@ -1,7 +1,9 @@
 //! A device profile (JSON) through parsing and validation, and a valid one through what
-//! `profile show` and `profile export` do with it (conversions to COLMAP and OpenCV).
+//! `profile show` and `profile export` do with it (the distortion check `show` warns from,
+//! conversions to COLMAP and OpenCV).
 #![no_main]
 
+use pipemeasure::calibrate::checks::check_distortion;
 use pipemeasure::camera::convert::{colmap_from_brown, opencv_from_brown, simplest_colmap_model};
 use pipemeasure::profile::Profile;
 
@@ -11,6 +13,7 @@ libfuzzer_sys::fuzz_target!(|data: &[u8]| {
         return;
     };
     if let Ok(p) = Profile::from_json(text, std::path::Path::new("fuzz.json")) {
+        let _ = check_distortion(&p.intrinsics, (p.image.width, p.image.height));
         let cam = p.camera();
         let _ = colmap_from_brown(&cam, simplest_colmap_model(&cam));
         let _ = opencv_from_brown(&cam);
