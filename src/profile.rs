@@ -240,6 +240,27 @@ impl Profile {
         }
     }
 
+    /// The covariance of the ten intrinsics (in [`Term::ALL`] order) from the σ and the
+    /// correlation of the calibrated terms; zero for the fixed ones.
+    #[must_use]
+    pub fn covariance(&self) -> nalgebra::DMatrix<f64> {
+        let mut cov = nalgebra::DMatrix::zeros(10, 10);
+        let names = &self.correlation.names;
+        for (i, a) in names.iter().enumerate() {
+            for (j, b) in names.iter().enumerate() {
+                let r = self
+                    .correlation
+                    .matrix
+                    .get(i)
+                    .and_then(|row| row.get(j))
+                    .copied()
+                    .unwrap_or(0.0);
+                cov[(a.index(), b.index())] = r * self.std_dev.get(*a) * self.std_dev.get(*b);
+            }
+        }
+        cov
+    }
+
     /// Parses and validates a profile from JSON text; `path` is used in errors.
     ///
     /// # Errors

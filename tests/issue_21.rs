@@ -151,7 +151,7 @@ fn issue_21_fit_cylinder_on_coordinates_near_1e308_exits_1() {
 fn issue_21_invalid_option_values_exit_2() {
     let dir = tempfile::tempdir().unwrap();
     write(dir.path(), "c.ply", &ply(&[[0.0, 0.0, 0.0]; 20]));
-    let cases: [(&[&str], &str); 9] = [
+    let cases: [(&[&str], &str); 11] = [
         (
             &[
                 "fit-cylinder",
@@ -188,6 +188,31 @@ fn issue_21_invalid_option_values_exit_2() {
         (
             &["detect", "x.png", "--min-semi-minor", "0"],
             "--min-semi-minor",
+        ),
+        // The rolling shutter's readout time (merged from main): 0 < ms ≤ 100.
+        (
+            &[
+                "calibrate",
+                "--device",
+                "d",
+                "--frames",
+                ".",
+                "--readout-time",
+                "0",
+            ],
+            "--readout-time",
+        ),
+        (
+            &[
+                "calibrate",
+                "--device",
+                "d",
+                "--frames",
+                ".",
+                "--readout-time",
+                "nan",
+            ],
+            "--readout-time",
         ),
     ];
     for (args, names) in cases {

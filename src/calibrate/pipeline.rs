@@ -20,7 +20,8 @@ use super::checks::{projection_difference_rotated, projection_uncertainty};
 use super::matching::{MatchConfig, Matching, match_targets};
 use super::refine::{Algorithm1, PairGeometry, RefineConfig, RefineError, algorithm1};
 use super::selection::{
-    ModelChoice, Selected, SelectionConfig, SelectionStep, adjust_terms, select_terms,
+    ModelChoice, RollingShutterSetup, Selected, SelectionConfig, SelectionStep, adjust_terms,
+    estimate_readout_time, select_terms,
 };
 use super::views::{FrameCamera, TargetObservation, observations};
 use crate::adjust::{
@@ -59,6 +60,34 @@ pub struct CalibrateConfig {
     /// fraction of its worst projection σ (matches that still change by a view or two at the
     /// gate, or a term on the edge of selection, then move nothing that matters), default 0.1.
     pub camera_stable_ratio: f64,
+    /// The rolling-shutter candidate of the term selection (issue 19): `None` leaves it out.
+    /// The selection tries it with the readout time held at [`ReadoutStart::readout_s`]
+    /// (with one frame per instant only readout × velocity shows); once kept, the readout
+    /// time is estimated from the frames' neighbours in the video when
+    /// [`CalibrationInput::neighbours`] has them, unless [`ReadoutStart::hold`].
+    pub rolling_shutter: Option<ReadoutStart>,
+}
+
+/// A phone's readout time when nothing better is known (s): 4K30 video on phones reads out in
+/// 15–33 ms.
+pub const NOMINAL_READOUT_S: f64 = 0.025;
+
+/// Where the readout time starts, and whether it is held.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReadoutStart {
+    /// Readout time (s): the start of the estimate, or the value held.
+    pub readout_s: f64,
+    /// Hold it (a readout time known from elsewhere) instead of estimating it.
+    pub hold: bool,
+}
+
+impl Default for ReadoutStart {
+    fn default() -> Self {
+        ReadoutStart {
+            readout_s: NOMINAL_READOUT_S,
+            hold: false,
+        }
+    }
 }
 
 impl Default for CalibrateConfig {
@@ -77,6 +106,7 @@ impl Default for CalibrateConfig {
             min_frames: 10,
             min_targets: 20,
             camera_stable_ratio: 0.1,
+            rolling_shutter: Some(ReadoutStart::default()),
         }
     }
 }
@@ -256,7 +286,23 @@ pub struct CalibrationInput<'a> {
     pub detections: &'a [Vec<Ellipse>],
     /// Frame size (px).
     pub image_size: (u32, u32),
+    /// Per registered image (image-id order), the detections in its neighbours in the video
+    /// (`±1/fps`); empty when the frames are not from a video (or have no neighbours).
+    pub neighbours: &'a [Vec<NeighbourDetections>],
 }
+
+/// The detected ellipses of a frame's neighbour in the video.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NeighbourDetections {
+    /// Its time from the frame (s).
+    pub dt_s: f64,
+    /// Its detected ellipses (observed pixels).
+    pub ellipses: Vec<Ellipse>,
+}
+
+/// A frame's detections linked to those of its neighbours: per neighbour, its time offset and,
+/// per detection of the frame, the index of the same target's ellipse in the neighbour.
+type NeighbourLinks = Vec<(f64, Vec<Option<usize>>)>;
 
 /// Calibrates a device from an SfM model and the detections in its frames.
 ///
@@ -281,6 +327,35 @@ pub fn calibrate(
             "{} detection lists for {n_frames} registered frames",
             input.detections.len()
         )));
+    }
+    if !input.neighbours.is_empty() && input.neighbours.len() != n_frames {
+        return Err(CalibrateError::Input(format!(
+            "{} neighbour lists for {n_frames} registered frames",
+            input.neighbours.len()
+        )));
+    }
+    let mut config = config.clone();
+    if let Some(start) = config.rolling_shutter {
+        config.selection.rolling_shutter = Some(RollingShutterSetup {
+            height_px: f64::from(input.image_size.1),
+            readout_s: start.readout_s,
+            estimate_readout: false,
+        });
+    }
+    let config = &config;
+    let links = neighbour_links(input);
+    let estimate_readout =
+        config.rolling_shutter.is_some_and(|r| !r.hold) && links.iter().any(|l| !l.is_empty());
+    if !input.neighbours.is_empty() {
+        let linked: usize = links
+            .iter()
+            .flatten()
+            .map(|(_, l)| l.iter().flatten().count())
+            .sum();
+        let total: usize = input.neighbours.iter().flatten().count();
+        log(&format!(
+            "rolling shutter: {total} neighbour frames in the video, {linked} of their detections linked to the frames'"
+        ));
     }
     // Steps 1–2.
     let a1 = algorithm1(input.model, None, &config.refine)?;
@@ -404,7 +479,8 @@ pub fn calibrate(
             problem,
             frames,
             dropped_frames,
-        } = target_problem(&m, &cameras, config)?;
+            neighbour_observations,
+        } = target_problem(&m, &cameras, &obs, input, &links, config)?;
         if !dropped_frames.is_empty() {
             log(&format!(
                 "iteration {iteration}: {} frame(s) left out of the adjustment, fewer than {MIN_FRAME_OBSERVATIONS} target observations: {}",
@@ -463,6 +539,27 @@ pub fn calibrate(
             selected = kept;
         }
         term_history.push(selected.choice());
+        if estimate_readout
+            && selected.rolling_shutter.is_some()
+            && !neighbour_observations.is_empty()
+        {
+            let held = 1e3 * selected.problem.global[BrownModel::READOUT];
+            selected = estimate_readout_time(
+                selected,
+                &neighbour_observations,
+                &config.selection,
+                &config.adjust,
+                log,
+            )?;
+            log(&format!(
+                "iteration {iteration}: readout time from {} observations in the neighbouring video frames (weight {:.3} against the frames'): {:.2} ± {:.2} ms (held at {held:.2} ms in the selection); σ0 {:.4} px",
+                neighbour_observations.len(),
+                selected.neighbour_weight.unwrap_or(1.0),
+                1e3 * selected.problem.global[BrownModel::READOUT],
+                1e3 * selected.readout_std_s.unwrap_or(0.0),
+                selected.precision.sigma0
+            ));
+        }
         free_network_datum(&mut selected.problem, &reference)?;
         let intrinsics = intrinsics_of(&selected.problem);
         // How far the camera moved since the last iteration, against its own uncertainty.
@@ -642,17 +739,14 @@ fn finish(
         .rolling_shutter
         .map(|setup| RollingShutterEstimate {
             readout_s: p.global[BrownModel::READOUT],
-            readout_std_s: if setup.estimate_readout {
-                global_std[BrownModel::READOUT]
-            } else {
-                0.0
-            },
+            readout_std_s: selected.readout_std_s.unwrap_or(0.0),
             estimated: setup.estimate_readout,
             motions: p.local.chunks(6).map(Motion::from_slice).collect(),
         });
     let observations: Vec<CalibrationObservation> = p
         .observations
         .iter()
+        .filter(|o| o.time_offset_s == 0.0)
         .filter_map(|o| {
             let r = -p.residual(o)?;
             Some(CalibrationObservation {
@@ -846,6 +940,28 @@ struct TargetProblem {
     frames: Vec<usize>,
     /// Frames left out: too few target observations to fix their pose.
     dropped_frames: Vec<usize>,
+    /// The views' targets seen in the frames' neighbours in the video, each at its time
+    /// offset: they tie a rolling-shutter model's motions to time.
+    neighbour_observations: Vec<Observation>,
+}
+
+/// The frames' detections linked to their neighbours' ([`super::neighbours::associate`]).
+fn neighbour_links(input: &CalibrationInput<'_>) -> Vec<NeighbourLinks> {
+    use rayon::prelude::*;
+    if input.neighbours.is_empty() {
+        return vec![Vec::new(); input.detections.len()];
+    }
+    input
+        .detections
+        .par_iter()
+        .zip(input.neighbours)
+        .map(|(frame, neighbours)| {
+            neighbours
+                .iter()
+                .map(|n| (n.dt_s, super::neighbours::associate(frame, &n.ellipses)))
+                .collect()
+        })
+        .collect()
 }
 
 /// Fewest target observations a frame needs in the adjustment: three points fix a pose, six
@@ -860,10 +976,13 @@ pub const MIN_FRAME_OBSERVATIONS: usize = 6;
 fn target_problem(
     m: &Matching,
     cameras: &[FrameCamera],
+    obs: &[Vec<TargetObservation>],
+    input: &CalibrationInput<'_>,
+    links: &[NeighbourLinks],
     config: &CalibrateConfig,
 ) -> Result<TargetProblem, CalibrateError> {
-    /// A target's point and its (frame, observed pixel) views.
-    type Views = (Vector3<f64>, Vec<(usize, Vector2<f64>)>);
+    /// A target's point and its (frame, observed pixel, detection index) views.
+    type Views = (Vector3<f64>, Vec<(usize, Vector2<f64>, usize)>);
     let mut tracks: Vec<Views> = m
         .tracks
         .iter()
@@ -874,7 +993,7 @@ fn target_problem(
                 .filter_map(|v| {
                     let c = v.corrected?;
                     let uv = cameras[v.frame].distort(&c)?;
-                    Some((v.frame, uv))
+                    Some((v.frame, uv, obs[v.frame].get(v.obs)?.index))
                 })
                 .collect();
             (track.point.coords, views)
@@ -885,7 +1004,7 @@ fn target_problem(
         tracks.retain(|(_, views)| views.len() >= config.min_views);
         let mut count = vec![0usize; cameras.len()];
         for (_, views) in &tracks {
-            for (frame, _) in views {
+            for (frame, ..) in views {
                 count[*frame] += 1;
             }
         }
@@ -900,7 +1019,7 @@ fn target_problem(
             break;
         }
         for (_, views) in &mut tracks {
-            views.retain(|(frame, _)| keep_frame[*frame]);
+            views.retain(|(frame, ..)| keep_frame[*frame]);
         }
     }
     if tracks.len() < config.min_targets {
@@ -918,10 +1037,11 @@ fn target_problem(
     }
     let mut points = Vec::with_capacity(tracks.len());
     let mut observations = Vec::new();
+    let mut neighbour_observations = Vec::new();
     for (point, views) in tracks {
         let id = points.len();
         points.push(point);
-        for (frame, uv) in views {
+        for (frame, uv, index) in views {
             observations.push(Observation {
                 camera: camera_of[frame],
                 point: id,
@@ -929,6 +1049,30 @@ fn target_problem(
                 weight: 1.0,
                 time_offset_s: 0.0,
             });
+            // The same target in the neighbours: its detected centre moved by the same
+            // eccentricity correction as the frame's (the view changes by a fraction of a
+            // degree in 1/fps).
+            let Some(detected) = input.detections[frame].get(index) else {
+                continue;
+            };
+            let correction = uv - detected.centre();
+            let neighbours = input.neighbours.get(frame).map_or(&[][..], Vec::as_slice);
+            for ((dt, link), n) in links[frame].iter().zip(neighbours) {
+                if let Some(e) = link
+                    .get(index)
+                    .copied()
+                    .flatten()
+                    .and_then(|j| n.ellipses.get(j))
+                {
+                    neighbour_observations.push(Observation {
+                        camera: camera_of[frame],
+                        point: id,
+                        uv: e.centre() + correction,
+                        weight: 1.0,
+                        time_offset_s: *dt,
+                    });
+                }
+            }
         }
     }
     let intrinsics = cameras[0].intrinsics;
@@ -944,6 +1088,7 @@ fn target_problem(
         problem,
         frames,
         dropped_frames,
+        neighbour_observations,
     })
 }
 

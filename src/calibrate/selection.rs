@@ -23,8 +23,8 @@ use nalgebra::Vector2;
 use serde::Serialize;
 
 use crate::adjust::{
-    AdjustConfig, AdjustError, AdjustSummary, BrownModel, Precision, PrecisionRequest, Problem,
-    bundle_adjust, precision,
+    AdjustConfig, AdjustError, AdjustSummary, BrownModel, Observation, Precision, PrecisionRequest,
+    Problem, bundle_adjust, precision,
 };
 use crate::camera::Term;
 
@@ -67,17 +67,17 @@ pub struct SelectionConfig {
 }
 
 impl Default for SelectionConfig {
-    /// The radial terms, then the rolling shutter (before the decentring and affinity terms,
-    /// which a frame's readout motion would otherwise bend), then p1+p2 and b1+b2.
+    /// The radial terms, then p1+p2 and b1+b2; the rolling shutter is tried after them
+    /// ([`select_terms`]).
     fn default() -> Self {
         SelectionConfig {
             candidates: vec![
                 Candidate::Terms(vec![Term::K1]),
                 Candidate::Terms(vec![Term::K2]),
                 Candidate::Terms(vec![Term::K3]),
-                Candidate::RollingShutter,
                 Candidate::Terms(vec![Term::P1, Term::P2]),
                 Candidate::Terms(vec![Term::B1, Term::B2]),
+                Candidate::RollingShutter,
             ],
             t_critical: 3.29,
             trend_critical: TREND_CRITICAL,
@@ -167,6 +167,12 @@ pub struct Selected {
     pub bic: f64,
     /// The rolling-shutter model, when it was kept (the problem's model then has it).
     pub rolling_shutter: Option<RollingShutterSetup>,
+    /// σ of the readout time estimated from the neighbouring video frames
+    /// ([`estimate_readout_time`]), s; `None` when it was held.
+    pub readout_std_s: Option<f64>,
+    /// Weight of the observations in the neighbouring video frames relative to the frames'
+    /// (their variance component, [`estimate_readout_time`]); `None` without them.
+    pub neighbour_weight: Option<f64>,
 }
 
 impl Selected {
@@ -317,6 +323,16 @@ fn fit(
 /// Runs the stepwise selection from `problem` (its distortion terms are reset to zero first;
 /// a rolling-shutter problem starts without its motions).
 ///
+/// The intrinsics are selected first with a global shutter. The rolling shutter, when
+/// [`SelectionConfig::rolling_shutter`] is set and [`Candidate::RollingShutter`] is a
+/// candidate, is then tried on top of them; when it is kept, every term is selected again
+/// from c, u0, v0 with the motions in the model. Tried earlier, the motions would take up
+/// what decentring and affinity terms not yet chosen leave (a roll rate common to the frames
+/// mimics p2 with u0; a pan or tilt rate b2 or b1): on a motionless lab they lowered σ0 by a
+/// sixth before p1, p2 were in. Tried later without the second pass, the terms chosen under
+/// the motions' residuals (no radial trend visible under 0.5 px of shear, b1 and b2 taking
+/// part of it) would stay.
+///
 /// # Errors
 /// [`AdjustError`] when even the base model (c, u0, v0) cannot be adjusted.
 pub fn select_terms(
@@ -329,34 +345,105 @@ pub fn select_terms(
     for t in &Term::ALL[3..] {
         start.global[t.index()] = 0.0;
     }
-    let mut terms = vec![Term::C, Term::U0, Term::V0];
-    let mut rolling: Option<RollingShutterSetup> = None;
-    let mut best = fit(start, &terms, false, adjust)?;
-    let radial_base = radial_residuals(&best.problem);
-    log(&format!(
-        "terms c, u0, v0: σ0 {:.4} px, BIC {:.1}, radial trend {:.4} px (F {:.1})",
-        best.precision.sigma0, best.bic, best.trend.rms_px, best.trend.f
-    ));
+    let base_terms = vec![Term::C, Term::U0, Term::V0];
+    let base = fit(start, &base_terms, false, adjust)?;
+    let radial_base = radial_residuals(&base.problem);
     let mut steps = Vec::new();
+    let (mut best, mut terms) = stepwise(
+        base,
+        base_terms.clone(),
+        config,
+        Stage::GlobalShutter,
+        &mut steps,
+        adjust,
+        log,
+    );
+    let mut rolling = None;
+    if let Some(setup) = config.rolling_shutter
+        && config.candidates.contains(&Candidate::RollingShutter)
+    {
+        let (step, kept) = try_rolling_shutter(&best, &terms, setup, adjust, log);
+        steps.push(step);
+        if let Some(trial) = kept {
+            log("rolling shutter kept: the terms are selected again with it");
+            let mut start = trial.problem;
+            for t in &Term::ALL[3..] {
+                start.global[t.index()] = 0.0;
+            }
+            let base = fit(start, &base_terms, false, adjust)?;
+            (best, terms) = stepwise(
+                base,
+                base_terms,
+                config,
+                Stage::RollingShutter,
+                &mut steps,
+                adjust,
+                log,
+            );
+            rolling = Some(setup);
+        }
+    }
+    Ok(Selected {
+        problem: best.problem,
+        terms,
+        precision: best.precision,
+        summary: best.summary,
+        steps,
+        radial_base,
+        bic: best.bic,
+        rolling_shutter: rolling,
+        readout_std_s: None,
+        neighbour_weight: None,
+    })
+}
+
+/// What the model of a stepwise pass has besides the intrinsics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    /// A global shutter.
+    GlobalShutter,
+    /// The frames' motions, the readout time held.
+    RollingShutter,
+    /// The motions, the neighbours' observations and the readout time free.
+    WithNeighbours,
+}
+
+/// The forward stepwise selection of the intrinsic candidates of `config` not yet in `terms`
+/// from `best` (its `terms` free), each kept when significant and lowering the BIC; the
+/// decisions are appended to `steps`.
+fn stepwise(
+    mut best: Fit,
+    mut terms: Vec<Term>,
+    config: &SelectionConfig,
+    stage: Stage,
+    steps: &mut Vec<SelectionStep>,
+    adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
+) -> (Fit, Vec<Term>) {
+    log(&format!(
+        "terms {}{}: σ0 {:.4} px, BIC {:.1}, radial trend {:.4} px (F {:.1})",
+        names_list(&terms, ", "),
+        match stage {
+            Stage::GlobalShutter => "",
+            Stage::RollingShutter => " and the rolling shutter",
+            Stage::WithNeighbours => {
+                " and the rolling shutter with the neighbouring video frames"
+            }
+        },
+        best.precision.sigma0,
+        best.bic,
+        best.trend.rms_px,
+        best.trend.f
+    ));
     let mut radial_done = false;
     for candidate in &config.candidates {
-        let group = match candidate {
-            Candidate::Terms(group) => group,
-            Candidate::RollingShutter => {
-                if let Some(setup) = config.rolling_shutter {
-                    let (step, kept) = try_rolling_shutter(&best, &terms, setup, adjust, log);
-                    steps.push(step);
-                    if let Some(trial) = kept {
-                        best = trial;
-                        rolling = Some(setup);
-                    }
-                }
-                continue;
-            }
+        let Candidate::Terms(group) = candidate else {
+            continue;
         };
-        let radial = group
-            .iter()
-            .all(|t| matches!(t, Term::K1 | Term::K2 | Term::K3));
+        if group.iter().all(|t| terms.contains(t)) {
+            continue;
+        }
+        let radial = is_radial(group);
         if radial && radial_done {
             continue;
         }
@@ -372,7 +459,9 @@ pub fn select_terms(
         }
         let mut trial_terms = terms.clone();
         trial_terms.extend(group.iter().copied());
-        let readout_free = rolling.is_some_and(|r| r.estimate_readout);
+        // The readout time is held without the neighbours (one frame per instant shows only
+        // the products readout × velocity).
+        let readout_free = stage == Stage::WithNeighbours;
         let trial = match fit(best.problem.clone(), &trial_terms, readout_free, adjust) {
             Ok(t) => t,
             Err(e) => {
@@ -434,16 +523,7 @@ pub fn select_terms(
             radial_done = true;
         }
     }
-    Ok(Selected {
-        problem: best.problem,
-        terms,
-        precision: best.precision,
-        summary: best.summary,
-        steps,
-        radial_base,
-        bic: best.bic,
-        rolling_shutter: rolling,
-    })
+    (best, terms)
 }
 
 /// Tries the rolling-shutter model on top of `best` (intrinsics `terms` free): kept when its
@@ -525,6 +605,122 @@ fn try_rolling_shutter(
     (step, accepted.then_some(trial))
 }
 
+/// The readout time of a selected rolling-shutter model estimated with the `extra`
+/// observations of its targets in the frames' neighbours in the video (each at its
+/// `time_offset_s`): they show how far the frames moved in a known time, which ties the
+/// motions to time and separates the readout time from them. They also fix what the frames
+/// alone cannot: a roll rate common to all frames shifts columns in proportion to the row
+/// and trades with u0 and p2 (`u0 ↔ yaw + p2 + ω_z`), a pan rate and a tilt rate with b2 and
+/// b1. The terms stay those selected.
+///
+/// A frame's motion is first order about its time, which hand tremor (4–12 Hz) bends over
+/// `±1/fps` far more than over the readout: the neighbours' residuals are larger than the
+/// frames'. Their weight is set by a variance-component estimate (Förstner 1979, simplified
+/// to the groups' RMS residuals), `w = (RMS of the frames / RMS of the neighbours)²`, iterated
+/// until it changes by less than 10 % (at most [`VARIANCE_COMPONENT_ITERATIONS`] times), so
+/// that σ0 and the covariance stay those of the frames' observations.
+///
+/// # Errors
+/// [`AdjustError::Invalid`] for a model without a rolling shutter or observations that do not
+/// fit the problem; [`AdjustError`] when the adjustment cannot run.
+pub fn estimate_readout_time(
+    selected: Selected,
+    extra: &[Observation],
+    config: &SelectionConfig,
+    adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
+) -> Result<Selected, AdjustError> {
+    let Some(setup) = selected.rolling_shutter else {
+        return Err(AdjustError::Invalid(
+            "the readout time is estimated only for a rolling-shutter model".into(),
+        ));
+    };
+    let own = selected.problem.observations.len();
+    let mut current = selected.problem.clone();
+    // Start from the neighbours' residuals at the selected model (its motions fit the frames
+    // alone): the weight's fixed point reached from 1 is the compromise where both groups fit
+    // equally badly, not the frames' precision.
+    let mut weight = (group_rms(&current, &current.observations)
+        / group_rms(&current, extra).max(f64::MIN_POSITIVE))
+    .powi(2)
+    .min(1.0);
+    let mut fitted = None;
+    for _ in 0..VARIANCE_COMPONENT_ITERATIONS {
+        let mut observations = selected.problem.observations.clone();
+        observations.extend(extra.iter().map(|o| Observation { weight, ..*o }));
+        let mut problem = Problem::new(
+            current.model,
+            current.cam_from_world.clone(),
+            current.local.clone(),
+            current.global.clone(),
+            current.points.clone(),
+            observations,
+        )?;
+        problem.fixed = selected.problem.fixed.clone();
+        let fit_now = fit(problem, &selected.terms, true, adjust)?;
+        let (frames_rms, neighbours_rms) = (
+            group_rms(&fit_now.problem, &fit_now.problem.observations[..own]),
+            group_rms(&fit_now.problem, &fit_now.problem.observations[own..]),
+        );
+        let next = (frames_rms / neighbours_rms.max(f64::MIN_POSITIVE))
+            .powi(2)
+            .min(1.0);
+        current = fit_now.problem.clone();
+        fitted = Some(fit_now);
+        let settled = (next / weight - 1.0).abs() < 0.1;
+        weight = next;
+        if settled {
+            break;
+        }
+    }
+    let Some(fitted) = fitted else {
+        return Err(AdjustError::Invalid(
+            "no variance-component iteration ran".into(),
+        ));
+    };
+    // The terms the motions hid (a decentring whose p2 a common roll rate could mimic) are
+    // tried again now that the neighbours fix the motions.
+    let mut steps = selected.steps.clone();
+    let (fitted, terms) = stepwise(
+        fitted,
+        selected.terms.clone(),
+        config,
+        Stage::WithNeighbours,
+        &mut steps,
+        adjust,
+        log,
+    );
+    let readout_std_s = fitted.precision.global_std()[BrownModel::READOUT];
+    Ok(Selected {
+        terms,
+        steps,
+        rolling_shutter: Some(RollingShutterSetup {
+            estimate_readout: true,
+            readout_s: fitted.problem.global[BrownModel::READOUT],
+            ..setup
+        }),
+        problem: fitted.problem,
+        precision: fitted.precision,
+        summary: fitted.summary,
+        bic: fitted.bic,
+        readout_std_s: Some(readout_std_s),
+        neighbour_weight: Some(weight),
+        ..selected
+    })
+}
+
+/// RMS residual per coordinate of `observations` in `problem` (px).
+fn group_rms(problem: &Problem<BrownModel>, observations: &[Observation]) -> f64 {
+    let (sum, n) = observations
+        .iter()
+        .filter_map(|o| problem.residual(o))
+        .fold((0.0, 0usize), |(s, n), r| (s + r.norm_squared(), n + 1));
+    (sum / (2 * n.max(1)) as f64).sqrt()
+}
+
+/// Most adjustments of the neighbours' variance component ([`estimate_readout_time`]).
+pub const VARIANCE_COMPONENT_ITERATIONS: usize = 4;
+
 /// Adjusts `problem` with the model `choice` and no selection (the other intrinsics reset to
 /// zero and fixed; the rolling shutter of `setup` when the choice has it): the calibration
 /// loop's model once the selection alternated between two ([`super::pipeline`]).
@@ -575,7 +771,16 @@ pub fn adjust_terms(
         radial_base: radial_residuals(&base.problem),
         bic: chosen.bic,
         rolling_shutter: rolling,
+        readout_std_s: None,
+        neighbour_weight: None,
     })
+}
+
+/// A group of radial terms only.
+fn is_radial(group: &[Term]) -> bool {
+    group
+        .iter()
+        .all(|t| matches!(t, Term::K1 | Term::K2 | Term::K3))
 }
 
 fn names(terms: &[Term]) -> String {

@@ -15,7 +15,9 @@ use pipemeasure::calibrate::checks::{
     projection_difference_rotated, projection_uncertainty,
 };
 use pipemeasure::calibrate::network::colmap_network;
-use pipemeasure::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, calibrate};
+use pipemeasure::calibrate::pipeline::{
+    CalibrateConfig, Calibration, CalibrationInput, NeighbourDetections, ReadoutStart, calibrate,
+};
 use pipemeasure::camera::Term;
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
@@ -81,6 +83,26 @@ pub struct Args {
     /// σ per axis of the check points (m, 0 or more), for the predicted RMS.
     #[arg(long, default_value_t = 0.0, value_parser = values::non_negative)]
     check_point_sigma: f64,
+    /// The rolling-shutter model (a motion per frame and the readout time): `auto` lets the
+    /// term selection keep it when the frames show it (significant and lowering the BIC),
+    /// `off` leaves it out (a global-shutter camera).
+    #[arg(long, value_enum, default_value_t = RollingShutterMode::Auto)]
+    rolling_shutter: RollingShutterMode,
+    /// The readout time (ms), when known (a device's data sheet, an earlier calibration): held
+    /// at this value. Without it the readout time is estimated from the frames' neighbours in
+    /// the video listed in `FRAMES/frames.json`, or held at 25 ms when there are none (the
+    /// camera is then still right: only readout × velocity shows in one frame).
+    #[arg(long, value_name = "MS", value_parser = values::readout_ms)]
+    readout_time: Option<f64>,
+}
+
+/// `--rolling-shutter`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum RollingShutterMode {
+    /// Tried by the term selection, kept when significant.
+    Auto,
+    /// Left out.
+    Off,
 }
 
 /// The SfM model: the given one, or COLMAP's.
@@ -129,6 +151,57 @@ fn image_size(model: &Reconstruction) -> Result<(u32, u32)> {
         u32::try_from(first.0).context("camera width")?,
         u32::try_from(first.1).context("camera height")?,
     ))
+}
+
+/// The detections in the frames' neighbours in the video, from `FRAMES/frames.json` when
+/// there is one (empty otherwise, or with `--rolling-shutter off` or a held readout time,
+/// which do not use them).
+fn neighbour_detections(
+    args: &Args,
+    names: &[String],
+    size: (u32, u32),
+    quiet: bool,
+) -> Result<Vec<Vec<NeighbourDetections>>> {
+    let path = args.frames.join("frames.json");
+    if !path.is_file()
+        || args.rolling_shutter == RollingShutterMode::Off
+        || args.readout_time.is_some()
+    {
+        return Ok(Vec::new());
+    }
+    let sidecar = pipemeasure::io::sidecar::FramesSidecar::read(&path)?;
+    let lists: Vec<&[pipemeasure::io::sidecar::NeighbourEntry]> =
+        names.iter().map(|n| sidecar.neighbours_of(n)).collect();
+    let flat: Vec<String> = lists
+        .iter()
+        .flat_map(|l| l.iter().map(|n| n.name.clone()))
+        .collect();
+    if flat.is_empty() {
+        return Ok(Vec::new());
+    }
+    if let Some(missing) = flat.iter().find(|n| !args.frames.join(n).is_file()) {
+        bail!(
+            "{}: neighbour frame {missing} is not in {}",
+            path.display(),
+            args.frames.display()
+        );
+    }
+    // The neighbours are frames of the same camera: the model's size, checked before decoding.
+    let mut detected = detect_named_frames(&args.frames, &flat, size, args.min_semi_minor, quiet)
+        .context("detecting the targets of the frames' neighbours")?
+        .into_iter();
+    Ok(lists
+        .iter()
+        .map(|l| {
+            l.iter()
+                .zip(detected.by_ref())
+                .map(|(n, ellipses)| NeighbourDetections {
+                    dt_s: n.dt_s,
+                    ellipses,
+                })
+                .collect()
+        })
+        .collect())
 }
 
 /// Every model image must be a file in the frames folder.
@@ -296,7 +369,7 @@ fn high_correlations(profile: &Profile) -> Vec<(String, String, f64)> {
 
 fn calibrate_model(
     model: &Reconstruction,
-    detections: &[Vec<Ellipse>],
+    (detections, neighbours): (&[Vec<Ellipse>], &[Vec<NeighbourDetections>]),
     size: (u32, u32),
     config: &CalibrateConfig,
     log: &dyn Fn(&str),
@@ -305,6 +378,7 @@ fn calibrate_model(
         model,
         detections,
         image_size: size,
+        neighbours,
     };
     Ok(calibrate(&input, config, log)?)
 }
@@ -561,8 +635,17 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         args.min_semi_minor,
         globals.quiet,
     )?;
+    let neighbours = neighbour_detections(args, &names, size, globals.quiet)?;
     let config = CalibrateConfig {
         max_iterations: usize::from(args.max_iterations),
+        rolling_shutter: match (args.rolling_shutter, args.readout_time) {
+            (RollingShutterMode::Off, _) => None,
+            (RollingShutterMode::Auto, None) => Some(ReadoutStart::default()),
+            (RollingShutterMode::Auto, Some(ms)) => Some(ReadoutStart {
+                readout_s: ms * 1e-3,
+                hold: true,
+            }),
+        },
         ..CalibrateConfig::default()
     };
     let quiet = globals.quiet;
@@ -571,7 +654,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             eprintln!("{m}");
         }
     };
-    let cal = calibrate_model(&model, &detections, size, &config, &log)?;
+    let cal = calibrate_model(&model, (&detections, &neighbours), size, &config, &log)?;
     let check = check_distortion(&cal.intrinsics, size);
     let mut warnings = cal.warnings.clone();
     if !check.ok {
@@ -597,13 +680,19 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
                 .filter(|(_, k)| **k)
                 .map(|(d, _)| d.clone())
                 .collect();
+            let nb: Vec<Vec<NeighbourDetections>> = neighbours
+                .iter()
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .map(|(d, _)| d.clone())
+                .collect();
             log(&format!(
                 "cross-validation: half {} ({} frames)",
                 h + 1,
                 det.len()
             ));
             models.push(
-                calibrate_model(&sub, &det, size, &config, &log)
+                calibrate_model(&sub, (&det, &nb), size, &config, &log)
                     .with_context(|| format!("cross-validation half {}", h + 1))?,
             );
         }

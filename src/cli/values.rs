@@ -57,6 +57,16 @@ pub fn below_one(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A rolling shutter's readout time in ms: a finite number in (0, 100].
+pub fn readout_ms(s: &str) -> Result<f64, String> {
+    let v = positive(s)?;
+    if v <= 100.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} ms: must be at most 100 ms"))
+    }
+}
+
 /// `X,Y,Z`: three finite numbers.
 pub fn point(s: &str) -> Result<Vector3<f64>, String> {
     let v: Vec<f64> = s.split(',').map(number).collect::<Result<_, _>>()?;
@@ -93,6 +103,10 @@ mod tests {
         assert!(non_negative("-1e-9").is_err());
         assert!(semi_minor_px("0.5").is_err());
         assert!(below_one("1").is_err());
+        assert_eq!(readout_ms("20"), Ok(20.0));
+        for bad in ["0", "-5", "100.5", "inf", "nan"] {
+            assert!(readout_ms(bad).is_err(), "{bad}");
+        }
         assert_eq!(point("1, 2,3"), Ok(Vector3::new(1.0, 2.0, 3.0)));
         assert!(point("1,2").is_err() && point("1,2,nan").is_err());
         assert!(direction("0,0,0").is_err());

@@ -69,6 +69,7 @@ pub fn run(
         model: &s.model,
         detections: &s.detections,
         image_size: (s.truth.camera.width, s.truth.camera.height),
+        neighbours: &[],
     };
     calibrate(&input, config, log).map_err(|e| e.to_string())
 }

@@ -41,8 +41,7 @@ use crate::camera::BrownCamera;
 use crate::io::WriteError;
 use crate::io::atomic::write_bytes_atomic;
 
-/// Schema tag of the frames sidecar `frames/frames.json`.
-pub const FRAMES_SCHEMA: &str = "pipemeasure.frames/1";
+pub use crate::io::sidecar::{FRAMES_SCHEMA, FramesEntry, FramesSidecar, NeighbourEntry};
 /// Schema tag of the full-rate video's `video/motion.json`.
 pub const VIDEO_MOTION_SCHEMA: &str = "pipemeasure.video/1";
 /// Noise-seed frame numbers of neighbours start here (main frames use their index).
@@ -148,35 +147,6 @@ impl VideoConfig {
                 reason: e.to_string(),
             })
     }
-}
-
-/// One entry of `frames/frames.json`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FramesEntry {
-    /// File name relative to the frames folder.
-    pub name: String,
-    /// Its time in the video (s).
-    pub time_s: f64,
-    /// Its neighbours in the video.
-    pub neighbours: Vec<NeighbourEntry>,
-}
-
-/// A neighbour in `frames/frames.json`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct NeighbourEntry {
-    /// File name relative to the frames folder.
-    pub name: String,
-    /// Time offset from its main frame (s).
-    pub dt_s: f64,
-}
-
-/// `frames/frames.json` (schema [`FRAMES_SCHEMA`]).
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct FramesSidecar {
-    /// Always [`FRAMES_SCHEMA`].
-    pub schema: String,
-    /// The extracted frames in order.
-    pub frames: Vec<FramesEntry>,
 }
 
 /// One video frame in `video/motion.json`.
