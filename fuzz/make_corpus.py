@@ -180,6 +180,18 @@ def small_corpora():
     put("profile", "rolling_shutter.json", json.dumps(j, indent=2))
     put("profile", "minimal.json", b'{"schema":"pipemeasure.profile/1","device":"d","image":{"width":64,"height":48},"model":"brown","terms":[],"intrinsics":{"c":50,"u0":32,"v0":24,"k1":0,"k2":0,"k3":0,"p1":0,"p2":0,"b1":0,"b2":0}}')
 
+    sidecar = {"schema": "pipemeasure.frames/1", "frames": [
+        {"name": "frame_%04d.png" % k, "time_s": float(k),
+         "neighbours": [{"name": "neighbours/frame_%04d-1.png" % k, "dt_s": -0.04},
+                        {"name": "neighbours/frame_%04d+1.png" % k, "dt_s": 0.04}]}
+        for k in range(1, 4)]}
+    put("frames_sidecar", "three.json", json.dumps(sidecar, indent=2))
+    put("frames_sidecar", "still.json", b'{"schema":"pipemeasure.frames/1","frames":[{"name":"a.png","time_s":0,"neighbours":[]}]}')
+    bad = json.loads(json.dumps(sidecar))
+    bad["frames"][0]["neighbours"][1]["name"] = bad["frames"][0]["neighbours"][0]["name"]
+    bad["frames"][1]["name"] = "../escaped.png"
+    put("frames_sidecar", "hostile.json", json.dumps(bad))
+
     put("tls_targets", "site.csv", "id,x,y,z\n1,500000.1,5600000.2,100.3\n2,500001.5,5600000.0,101.25\nT3,499999.0,5600002.0,99.0\n# a comment\n\n4,500000.5,5600001.5,100.0\n")
     put("tls_targets", "bad.csv", "id,x,y,z\n1,0,0,0\n1,nan,0,0\n2,1,2\n")
 
@@ -257,7 +269,7 @@ def main():
     if os.path.isdir(CORPUS):
         shutil.rmtree(CORPUS)
     for t in ["ply_ascii", "ply_binary", "colmap_text", "colmap_binary", "profile", "tls_targets",
-              "e57", "bal", "observations", "vis", "frame"]:
+              "e57", "bal", "observations", "vis", "frame", "frames_sidecar"]:
         os.makedirs(os.path.join(CORPUS, t), exist_ok=True)
     ply_corpus()
     colmap_corpus()

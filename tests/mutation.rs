@@ -57,6 +57,12 @@ fn profile(name: &str, b: &[u8]) -> Result<(), String> {
         .map_err(|e| e.to_string())
 }
 
+fn frames_sidecar(name: &str, b: &[u8]) -> Result<(), String> {
+    pipemeasure::io::sidecar::FramesSidecar::parse(text(name, b)?, Path::new(name))
+        .map(drop)
+        .map_err(|e| e.to_string())
+}
+
 fn tls(name: &str, b: &[u8]) -> Result<(), String> {
     pipemeasure::io::tls::parse_targets(Path::new(name), text(name, b)?)
         .map(drop)
@@ -238,7 +244,7 @@ fn mutated_files_of_every_format_never_panic_and_errors_name_the_file() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let corpus = root.join("fuzz/corpus");
     let data = root.join("../shared/data");
-    let readers: [(&str, Reader); 11] = [
+    let readers: [(&str, Reader); 12] = [
         ("ply_ascii", ply),
         ("ply_binary", ply),
         ("colmap_text", colmap_text),
@@ -250,6 +256,7 @@ fn mutated_files_of_every_format_never_panic_and_errors_name_the_file() {
         ("observations", observations),
         ("vis", vis),
         ("frame", frame),
+        ("frames_sidecar", frames_sidecar),
     ];
     // (reader, seed file, mutations)
     let mut seeds: Vec<(&str, Reader, PathBuf, usize)> = Vec::new();

@@ -170,8 +170,17 @@ fn neighbour_detections(
         return Ok(Vec::new());
     }
     let sidecar = pipemeasure::io::sidecar::FramesSidecar::read(&path)?;
-    let lists: Vec<&[pipemeasure::io::sidecar::NeighbourEntry]> =
-        names.iter().map(|n| sidecar.neighbours_of(n)).collect();
+    // Indexed once: a search per model image would be quadratic in a long sidecar.
+    let by_name: std::collections::HashMap<&str, &[pipemeasure::io::sidecar::NeighbourEntry]> =
+        sidecar
+            .frames
+            .iter()
+            .map(|f| (f.name.as_str(), f.neighbours.as_slice()))
+            .collect();
+    let lists: Vec<&[pipemeasure::io::sidecar::NeighbourEntry]> = names
+        .iter()
+        .map(|n| by_name.get(n.as_str()).copied().unwrap_or_default())
+        .collect();
     let flat: Vec<String> = lists
         .iter()
         .flat_map(|l| l.iter().map(|n| n.name.clone()))
