@@ -10,7 +10,9 @@ use std::path::{Path, PathBuf};
 use serde::{Deserialize, Serialize};
 
 use crate::camera::{BrownCamera, Intrinsics, Term};
-use crate::io::atomic::write_bytes_atomic;
+use std::io::Write as _;
+
+use crate::io::atomic::StagedFile;
 use crate::io::error::{ReadError, ReadErrorKind, WriteError, open_error};
 
 /// The schema tag of this profile format.
@@ -19,6 +21,9 @@ pub const PROFILE_SCHEMA: &str = "pipemeasure.profile/1";
 pub const CALIBRATIONS_ENV: &str = "PIPEMEASURE_CALIBRATIONS";
 /// The default profile folder, relative to the working directory.
 pub const CALIBRATIONS_DIR: &str = "calibrations";
+/// The smallest pixel aspect fx / fy a profile may have (and the inverse the largest): real
+/// cameras are within a percent of 1.
+pub const MIN_PIXEL_ASPECT: f64 = 0.5;
 
 /// Image size in pixels.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -185,8 +190,13 @@ pub enum ProfileError {
     #[error(transparent)]
     Write(#[from] WriteError),
     /// A profile exists where one would be written.
-    #[error("{} exists; pass --force to replace it (the old one is kept as {}.bak)", .0.display(), .0.display())]
+    #[error("{} exists; pass --force to replace it (the old one is kept as a numbered backup, {})", .0.display(), backup_path(.0, 1).display())]
     Exists(PathBuf),
+    /// A device name that is not a plain name.
+    #[error(
+        "`{0}` is not a device name: a name has no path separator, does not start with `.` and does not end with `.json` (a profile is written as calibrations/NAME.json; write elsewhere with --out PATH)"
+    )]
+    NotAName(String),
 }
 
 impl Profile {
@@ -259,9 +269,7 @@ impl Profile {
     /// match the schema; [`ProfileError::Invalid`] naming the field when a value is unacceptable.
     pub fn from_json(text: &str, path: &Path) -> Result<Self, ProfileError> {
         let de = &mut serde_json::Deserializer::from_str(text);
-        let profile: Profile = serde_path_to_error::deserialize(de).map_err(|e| {
-            let field = e.path().to_string();
-            let inner = e.into_inner();
+        let json_error = |field: String, inner: serde_json::Error| {
             let line = inner.line();
             let kind = ReadErrorKind::Json {
                 field: if field == "." {
@@ -276,7 +284,14 @@ impl Profile {
             } else {
                 ReadError::new(path, kind)
             }
+        };
+        let profile: Profile = serde_path_to_error::deserialize(&mut *de).map_err(|e| {
+            let field = e.path().to_string();
+            json_error(field, e.into_inner())
         })?;
+        // One profile per file: anything but white space after it (a second object) is an
+        // error, not silently ignored.
+        de.end().map_err(|e| json_error("(document)".into(), e))?;
         profile.validate(path)?;
         Ok(profile)
     }
@@ -287,6 +302,9 @@ impl Profile {
     ///
     /// As [`Profile::from_json`], plus a missing or unreadable file.
     pub fn read(path: &Path) -> Result<Self, ProfileError> {
+        if path.is_dir() {
+            return Err(ReadError::new(path, ReadErrorKind::IsDirectory).into());
+        }
         let text = std::fs::read_to_string(path).map_err(|e| open_error(path, e))?;
         Self::from_json(&text, path)
     }
@@ -317,11 +335,24 @@ impl Profile {
         if self.device.trim().is_empty() {
             return Err(invalid("device", "is empty".into()));
         }
-        if self.image.width == 0 {
-            return Err(invalid("image.width", "must be positive".into()));
+        use crate::io::frames::{MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX};
+        for (field, v) in [
+            ("image.width", self.image.width),
+            ("image.height", self.image.height),
+        ] {
+            if !(1..=MAX_FRAME_SIDE_PX).contains(&v) {
+                return Err(invalid(
+                    field,
+                    format!("is {v}, expected 1 to {MAX_FRAME_SIDE_PX} px"),
+                ));
+            }
         }
-        if self.image.height == 0 {
-            return Err(invalid("image.height", "must be positive".into()));
+        let pixels = u64::from(self.image.width) * u64::from(self.image.height);
+        if pixels > MAX_FRAME_PIXELS {
+            return Err(invalid(
+                "image",
+                format!("is {pixels} pixels, more than the {MAX_FRAME_PIXELS} a frame may have"),
+            ));
         }
         for term in Term::ALL {
             let v = self.intrinsics.get(term);
@@ -345,8 +376,19 @@ impl Profile {
                 format!("is {}, must be positive", self.intrinsics.c),
             ));
         }
-        if self.intrinsics.c + self.intrinsics.b1 <= 0.0 {
-            return Err(invalid("intrinsics.b1", "makes c + b1 non-positive".into()));
+        // fx = c + b1 and fy = c: a pixel aspect far from 1 is no camera (b1 = −c gives fx = 0).
+        let aspect = (self.intrinsics.c + self.intrinsics.b1) / self.intrinsics.c;
+        if !(MIN_PIXEL_ASPECT..=1.0 / MIN_PIXEL_ASPECT).contains(&aspect) {
+            return Err(invalid(
+                "intrinsics.b1",
+                format!(
+                    "is {}: fx = c + b1 = {} against fy = c = {}, a pixel aspect of {aspect:.3e} outside [{MIN_PIXEL_ASPECT}, {}]",
+                    self.intrinsics.b1,
+                    self.intrinsics.c + self.intrinsics.b1,
+                    self.intrinsics.c,
+                    1.0 / MIN_PIXEL_ASPECT
+                ),
+            ));
         }
         if let Some(r) = &self.rolling_shutter {
             if !(r.readout_s.is_finite() && r.readout_s >= 0.0 && r.readout_s < 1.0) {
@@ -426,24 +468,91 @@ impl Profile {
     }
 
     /// Writes the profile atomically. An existing file is refused unless `force`, in which case
-    /// it is first copied to `PATH.bak`.
+    /// it is first copied to a numbered backup ([`backup_path`]), whose path is returned.
     ///
     /// # Errors
     ///
     /// [`ProfileError::Exists`], [`ProfileError::Write`].
-    pub fn write(&self, path: &Path, force: bool) -> Result<(), ProfileError> {
-        if path.exists() {
-            if !force {
-                return Err(ProfileError::Exists(path.to_path_buf()));
-            }
-            let backup = PathBuf::from(format!("{}.bak", path.display()));
-            std::fs::copy(path, &backup).map_err(|e| WriteError::new(&backup, e))?;
+    pub fn write(&self, path: &Path, force: bool) -> Result<Option<PathBuf>, ProfileError> {
+        self.stage(path, force)?.commit()
+    }
+
+    /// Writes the profile beside `path`, to be moved into place by [`StagedProfile::commit`]
+    /// once the command's other outputs are written too. An existing file is refused unless
+    /// `force`.
+    ///
+    /// # Errors
+    ///
+    /// [`ProfileError::Exists`], [`ProfileError::Write`].
+    pub fn stage(&self, path: &Path, force: bool) -> Result<StagedProfile, ProfileError> {
+        if path.exists() && !force {
+            return Err(ProfileError::Exists(path.to_path_buf()));
         }
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|e| WriteError::new(dir, e))?;
         }
-        write_bytes_atomic(path, format!("{}\n", self.to_json()).as_bytes())?;
-        Ok(())
+        let text = format!("{}\n", self.to_json());
+        let file = StagedFile::write(path, |w| w.write_all(text.as_bytes()))?;
+        Ok(StagedProfile { file })
+    }
+}
+
+/// A profile written beside its destination ([`Profile::stage`]).
+#[derive(Debug)]
+pub struct StagedProfile {
+    file: StagedFile,
+}
+
+impl StagedProfile {
+    /// Moves the profile into place; a profile already there is first copied to a numbered
+    /// backup, never overwriting an earlier backup. Returns the backup's path, if one was made.
+    ///
+    /// # Errors
+    ///
+    /// [`ProfileError::Write`] naming the backup or the profile.
+    pub fn commit(self) -> Result<Option<PathBuf>, ProfileError> {
+        let path = self.file.destination().to_path_buf();
+        let backup = if path.exists() {
+            Some(backup_existing(&path)?)
+        } else {
+            None
+        };
+        self.file.commit()?;
+        Ok(backup)
+    }
+}
+
+/// The backup name of `path` with number `n`: `p30.json.1.bak`, `p30.json.2.bak`, … (the
+/// `.bak` suffix kept, so that `*.bak` patterns still match).
+#[must_use]
+pub fn backup_path(path: &Path, n: u32) -> PathBuf {
+    PathBuf::from(format!("{}.{n}.bak", path.display()))
+}
+
+/// Copies `path` to the first free numbered backup, created exclusively so that no backup is
+/// ever overwritten (not even by a concurrent run).
+fn backup_existing(path: &Path) -> Result<PathBuf, ProfileError> {
+    let bytes = std::fs::read(path).map_err(|e| WriteError::new(path, e))?;
+    let mut n = 1u32;
+    loop {
+        let backup = backup_path(path, n);
+        match std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&backup)
+        {
+            Ok(mut f) => {
+                f.write_all(&bytes)
+                    .and_then(|()| f.sync_all())
+                    .map_err(|e| WriteError::new(&backup, e))?;
+                return Ok(backup);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+            Err(e) => return Err(WriteError::new(&backup, e).into()),
+        }
+        n = n.checked_add(1).ok_or_else(|| {
+            WriteError::new(path, std::io::Error::other("every backup number is taken"))
+        })?;
     }
 }
 
@@ -466,7 +575,8 @@ pub fn search_dirs() -> Vec<PathBuf> {
     dirs
 }
 
-/// Device names available in the search folders (file stems of `*.json`), sorted, unique.
+/// Device names available in the search folders (stems of the `*.json` files; a folder named
+/// `x.json` is no profile), sorted, unique.
 #[must_use]
 pub fn available_devices() -> Vec<String> {
     let mut names: Vec<String> = search_dirs()
@@ -475,7 +585,8 @@ pub fn available_devices() -> Vec<String> {
         .flatten()
         .filter_map(|e| {
             let p = e.ok()?.path();
-            (p.extension()? == "json").then(|| p.file_stem()?.to_str().map(str::to_string))?
+            (p.extension()? == "json" && p.is_file())
+                .then(|| p.file_stem()?.to_str().map(str::to_string))?
         })
         .collect();
     names.sort();
@@ -488,6 +599,27 @@ fn looks_like_path(spec: &str) -> bool {
     spec.contains('/') || spec.contains(std::path::MAIN_SEPARATOR) || spec.ends_with(".json")
 }
 
+/// Checks that `name` is a device name, not a path: not empty, no path separator (`/`, `\`),
+/// no leading `.` (no `..`, no hidden file), no control character, not ending in `.json`. A
+/// profile is written as `calibrations/NAME.json`, so a name can never write outside it.
+///
+/// # Errors
+///
+/// [`ProfileError::NotAName`].
+pub fn validate_device_name(name: &str) -> Result<(), ProfileError> {
+    let ok = !name.trim().is_empty()
+        && !name.starts_with('.')
+        && !name.ends_with(".json")
+        && !name
+            .chars()
+            .any(|c| c == '/' || c == '\\' || c == std::path::MAIN_SEPARATOR || c.is_control());
+    if ok {
+        Ok(())
+    } else {
+        Err(ProfileError::NotAName(name.to_string()))
+    }
+}
+
 /// Resolves `--device` to a profile file.
 ///
 /// # Errors
@@ -495,17 +627,19 @@ fn looks_like_path(spec: &str) -> bool {
 /// [`ProfileError::UnknownDevice`] listing the available devices, or a not-found read error for
 /// a path.
 pub fn resolve_device(spec: &str) -> Result<PathBuf, ProfileError> {
+    let file = |p: PathBuf| -> Result<Option<PathBuf>, ProfileError> {
+        if p.is_dir() {
+            return Err(ReadError::new(p, ReadErrorKind::IsDirectory).into());
+        }
+        Ok(p.is_file().then_some(p))
+    };
     if looks_like_path(spec) {
         let p = PathBuf::from(spec);
-        if p.is_file() {
-            return Ok(p);
-        }
-        return Err(ReadError::new(p, ReadErrorKind::NotFound).into());
+        return file(p.clone())?.ok_or_else(|| ReadError::new(p, ReadErrorKind::NotFound).into());
     }
     let dirs = search_dirs();
     for d in &dirs {
-        let p = d.join(format!("{spec}.json"));
-        if p.is_file() {
+        if let Some(p) = file(d.join(format!("{spec}.json")))? {
             return Ok(p);
         }
     }
@@ -597,6 +731,13 @@ mod tests {
         );
         let e = error_for(|v| v["image"]["width"] = 0.into());
         assert!(e.contains("image.width"), "{e}");
+        let e = error_for(|v| v["image"]["height"] = 4_000_000_000u32.into());
+        assert!(
+            e.contains("field `image.height` is 4000000000, expected 1 to 65535 px"),
+            "{e}"
+        );
+        let e = error_for(|v| v["image"]["width"] = 60_000.into());
+        assert!(e.contains("field `image` is 129600000 pixels"), "{e}");
         let e = error_for(|v| v["schema"] = "pipemeasure.profile/9".into());
         assert!(e.contains("field `schema`"), "{e}");
         let e = error_for(|v| v["terms"] = serde_json::json!(["c", "k9"]));
@@ -625,7 +766,100 @@ mod tests {
         q.intrinsics.c = 3001.0;
         q.write(&path, true).unwrap();
         assert_eq!(Profile::read(&path).unwrap().intrinsics.c, 3001.0);
-        let backup = dir.path().join("dev.json.bak");
+        let backup = dir.path().join("dev.json.1.bak");
         assert_eq!(Profile::read(&backup).unwrap().intrinsics.c, 3000.0);
+    }
+
+    /// Issue 21: a second `--force` overwrote `.bak`, so the original profile was lost.
+    #[test]
+    fn issue_21_backups_are_numbered_and_never_overwritten() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("dev.json");
+        let mut p = sample();
+        for c in [3000.0, 3001.0, 3002.0, 3003.0] {
+            p.intrinsics.c = c;
+            p.write(&path, true).unwrap();
+        }
+        let c_of = |name: &str| Profile::read(&dir.path().join(name)).unwrap().intrinsics.c;
+        assert_eq!(c_of("dev.json"), 3003.0);
+        assert_eq!(c_of("dev.json.1.bak"), 3000.0);
+        assert_eq!(c_of("dev.json.2.bak"), 3001.0);
+        assert_eq!(c_of("dev.json.3.bak"), 3002.0);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 4);
+    }
+
+    /// Issue 21: a profile followed by a second object was accepted.
+    #[test]
+    fn issue_21_a_second_json_object_is_an_error() {
+        let text = sample().to_json();
+        let e = Profile::from_json(&format!("{text}\n{text}\n"), Path::new("p.json"))
+            .unwrap_err()
+            .to_string();
+        let second = text.lines().count() + 1;
+        assert!(
+            e.starts_with(&format!("p.json:{second}: (document): trailing characters")),
+            "{e}"
+        );
+        Profile::from_json(&format!("{text}\n \n"), Path::new("p.json")).unwrap();
+    }
+
+    /// Issue 21: `profile show` accepted fx = 0 (`b1 = −c`) when c + b1 came out a rounding
+    /// error above zero.
+    #[test]
+    fn issue_21_a_pixel_aspect_far_from_one_is_refused() {
+        for b1 in [-3000.0, -3000.0 + 1e-9, -1600.0, 3100.0] {
+            let e = error_for(|v| v["intrinsics"]["b1"] = b1.into());
+            assert!(
+                e.contains("field `intrinsics.b1`") && e.contains("pixel aspect"),
+                "{e}"
+            );
+        }
+        let mut v: serde_json::Value = serde_json::from_str(&sample().to_json()).unwrap();
+        v["intrinsics"]["b1"] = 2.5.into();
+        Profile::from_json(&v.to_string(), Path::new("p.json")).unwrap();
+    }
+
+    /// Issue 21: a profile path that is a directory gave "not found".
+    #[test]
+    fn issue_21_a_directory_is_not_a_profile() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().join("dir.json");
+        std::fs::create_dir(&d).unwrap();
+        for e in [
+            Profile::read(&d).unwrap_err().to_string(),
+            resolve_device(&d.display().to_string())
+                .unwrap_err()
+                .to_string(),
+        ] {
+            assert!(
+                e.ends_with("dir.json: is a directory, expected a file"),
+                "{e}"
+            );
+        }
+    }
+
+    /// Issue 21: `calibrate --device ../../escaped` without `--out` wrote outside
+    /// `calibrations/`.
+    #[test]
+    fn issue_21_device_names_are_names_not_paths() {
+        for bad in [
+            "../../escaped",
+            "a/b",
+            "a\\b",
+            "..",
+            ".hidden",
+            "",
+            " ",
+            "p30.json",
+            "x\ny",
+        ] {
+            assert!(
+                matches!(validate_device_name(bad), Err(ProfileError::NotAName(_))),
+                "{bad:?}"
+            );
+        }
+        for good in ["p30", "Pixel 7 Pro", "iphone11-4k.60fps", "pipe_cam"] {
+            validate_device_name(good).unwrap();
+        }
     }
 }

@@ -447,7 +447,7 @@ fn calibrate_command_writes_a_profile_and_a_report() {
     forced.push("--force");
     let (code, _, stderr) = pipemeasure(dir.path(), &forced, &[]);
     assert_eq!(code, 0, "{stderr}");
-    assert!(dir.path().join("prof.json.bak").is_file());
+    assert!(dir.path().join("prof.json.1.bak").is_file());
 }
 
 #[test]

@@ -236,7 +236,12 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         .collect();
     write("plane.ply", &format!("{}{plane}", header(2500)));
     expect_error(&["--scale", "1", "plane.ply"], 3, "no cylinder found");
-    expect_error(&["--scale=-2", "plane.ply"], 1, "--scale -2");
+    // An option value out of range is a usage error naming the option (issue 21: it was 1).
+    expect_error(
+        &["--scale=-2", "plane.ply"],
+        2,
+        "'-2' for '--scale <SCALE>'",
+    );
     // Main-command options with a subcommand are a usage error.
     expect_error(&["--device", "p30", "profile", "list"], 2, "main command");
 }

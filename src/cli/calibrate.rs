@@ -22,21 +22,23 @@ use pipemeasure::camera::Term;
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
+use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
 use pipemeasure::io::colmap::{ModelFormat, Reconstruction, run_colmap_sfm};
 use pipemeasure::profile::{
     CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, ReadoutTime, StdDev,
+    backup_path, validate_device_name,
 };
 use pipemeasure::report::plots;
 use serde::Serialize;
 
-use super::Globals;
 use super::matching::detect_named_frames;
+use super::{Globals, usage, values};
 
 /// Arguments of `calibrate`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Device name: the profile is written as `calibrations/NAME.json` unless `--out` says
-    /// otherwise.
+    /// Device name (a name, not a path): the profile is written as `calibrations/NAME.json`
+    /// unless `--out` says otherwise.
     #[arg(long)]
     device: String,
     /// Folder of the lab video's frames (image names in the SfM model are relative to it).
@@ -52,7 +54,8 @@ pub struct Args {
     /// Where to write the profile (default `calibrations/DEVICE.json`).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Replace an existing profile (the old one is kept as `PATH.bak`).
+    /// Replace an existing profile (the old one is kept as a numbered backup, `PATH.1.bak`,
+    /// `PATH.2.bak`, …).
     #[arg(long)]
     force: bool,
     /// Write plots (SVG), `report.json` and `report.md` into this folder.
@@ -62,12 +65,12 @@ pub struct Args {
     /// much their projections differ over the image.
     #[arg(long)]
     cross_validate: bool,
-    /// Smallest semi-minor axis of a target to use (px).
-    #[arg(long, default_value_t = 4.0)]
+    /// Smallest semi-minor axis of a target to use (px, at least 1).
+    #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
-    /// Cap on matching/adjustment iterations.
-    #[arg(long, default_value_t = 5)]
-    max_iterations: usize,
+    /// Cap on matching/adjustment iterations (at least 1).
+    #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..))]
+    max_iterations: u16,
     /// Write the adjusted network as a COLMAP model (text) into this folder: the profile's
     /// camera, the images at their adjusted poses, the targets as points3D.
     #[arg(long)]
@@ -77,8 +80,8 @@ pub struct Args {
     /// similarity, in the report and on stdout.
     #[arg(long)]
     check_points: Option<PathBuf>,
-    /// σ per axis of the check points (m), for the predicted RMS.
-    #[arg(long, default_value_t = 0.0)]
+    /// σ per axis of the check points (m, 0 or more), for the predicted RMS.
+    #[arg(long, default_value_t = 0.0, value_parser = values::non_negative)]
     check_point_sigma: f64,
     /// The rolling-shutter model (a motion per frame and the readout time): `auto` lets the
     /// term selection keep it when the frames show it (significant and lowering the BIC),
@@ -89,7 +92,7 @@ pub struct Args {
     /// at this value. Without it the readout time is estimated from the frames' neighbours in
     /// the video listed in `FRAMES/frames.json`, or held at 25 ms when there are none (the
     /// camera is then still right: only readout × velocity shows in one frame).
-    #[arg(long, value_name = "MS")]
+    #[arg(long, value_name = "MS", value_parser = values::readout_ms)]
     readout_time: Option<f64>,
 }
 
@@ -156,6 +159,7 @@ fn image_size(model: &Reconstruction) -> Result<(u32, u32)> {
 fn neighbour_detections(
     args: &Args,
     names: &[String],
+    size: (u32, u32),
     quiet: bool,
 ) -> Result<Vec<Vec<NeighbourDetections>>> {
     let path = args.frames.join("frames.json");
@@ -166,8 +170,17 @@ fn neighbour_detections(
         return Ok(Vec::new());
     }
     let sidecar = pipemeasure::io::sidecar::FramesSidecar::read(&path)?;
-    let lists: Vec<&[pipemeasure::io::sidecar::NeighbourEntry]> =
-        names.iter().map(|n| sidecar.neighbours_of(n)).collect();
+    // Indexed once: a search per model image would be quadratic in a long sidecar.
+    let by_name: std::collections::HashMap<&str, &[pipemeasure::io::sidecar::NeighbourEntry]> =
+        sidecar
+            .frames
+            .iter()
+            .map(|f| (f.name.as_str(), f.neighbours.as_slice()))
+            .collect();
+    let lists: Vec<&[pipemeasure::io::sidecar::NeighbourEntry]> = names
+        .iter()
+        .map(|n| by_name.get(n.as_str()).copied().unwrap_or_default())
+        .collect();
     let flat: Vec<String> = lists
         .iter()
         .flat_map(|l| l.iter().map(|n| n.name.clone()))
@@ -182,7 +195,8 @@ fn neighbour_detections(
             args.frames.display()
         );
     }
-    let mut detected = detect_named_frames(&args.frames, &flat, args.min_semi_minor, quiet)
+    // The neighbours are frames of the same camera: the model's size, checked before decoding.
+    let mut detected = detect_named_frames(&args.frames, &flat, size, args.min_semi_minor, quiet)
         .context("detecting the targets of the frames' neighbours")?
         .into_iter();
     Ok(lists
@@ -398,7 +412,6 @@ fn write_report(
     size: (u32, u32),
     report: &ReportJson<'_>,
 ) -> Result<()> {
-    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     // Radial residuals before (c, u0, v0 only) and after (the chosen model).
     let (u0, v0) = (cal.intrinsics.u0, cal.intrinsics.v0);
     let after: Vec<(f64, f64)> = cal
@@ -574,19 +587,9 @@ fn check_points_markdown(c: &CheckPointReport) -> String {
 }
 
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    validate_device_name(&args.device).map_err(|e| usage(format!("--device: {e}")))?;
     if !args.frames.is_dir() {
         bail!("--frames {}: not a folder", args.frames.display());
-    }
-    if let Some(ms) = args.readout_time
-        && !(ms.is_finite() && ms > 0.0 && ms <= 100.0)
-    {
-        bail!("--readout-time {ms}: must be a time in ms between 0 and 100");
-    }
-    if !(args.check_point_sigma.is_finite() && args.check_point_sigma >= 0.0) {
-        bail!(
-            "--check-point-sigma {}: must be a number ≥ 0 (m)",
-            args.check_point_sigma
-        );
     }
     // Read the check points first: a bad file fails before minutes of calibration.
     let check_list = args
@@ -609,19 +612,41 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         .unwrap_or_else(|| Path::new(CALIBRATIONS_DIR).join(format!("{}.json", args.device)));
     if out.exists() && !args.force {
         bail!(
-            "{} exists: pass --force to replace it (the old profile is kept as {}.bak) or --out \
-             to write elsewhere",
+            "{} exists: pass --force to replace it (the old profile is kept as a numbered backup, \
+             {}) or --out to write elsewhere",
             out.display(),
+            backup_path(&out, 1).display()
+        );
+    }
+    // Every destination before minutes of calibration: the profile's folder is created if
+    // missing (calibrations/), the report's and the network's too.
+    check_writable_dir(
+        out.parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(Path::new(".")),
+    )?;
+    if out.is_dir() {
+        bail!(
+            "--out {}: is a folder, expected the profile's file name",
             out.display()
         );
+    }
+    for dir in [&args.report, &args.network].into_iter().flatten() {
+        check_writable_dir(dir)?;
     }
     let model = sfm_model(args, globals.quiet)?;
     let names = check_frames(&model, &args.frames)?;
     let size = image_size(&model)?;
-    let detections = detect_named_frames(&args.frames, &names, args.min_semi_minor, globals.quiet)?;
-    let neighbours = neighbour_detections(args, &names, globals.quiet)?;
+    let detections = detect_named_frames(
+        &args.frames,
+        &names,
+        size,
+        args.min_semi_minor,
+        globals.quiet,
+    )?;
+    let neighbours = neighbour_detections(args, &names, size, globals.quiet)?;
     let config = CalibrateConfig {
-        max_iterations: args.max_iterations,
+        max_iterations: usize::from(args.max_iterations),
         rolling_shutter: match (args.rolling_shutter, args.readout_time) {
             (RollingShutterMode::Off, _) => None,
             (RollingShutterMode::Auto, None) => Some(ReadoutStart::default()),
@@ -749,10 +774,10 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         ),
         None => None,
     };
-    profile
-        .write(&out, args.force)
-        .with_context(|| format!("writing the profile {}", out.display()))?;
-    if let Some(dir) = &args.report {
+    // Every output is written beside its destination first; only when all are complete are
+    // they moved into place, the profile last (a failure before leaves nothing new behind).
+    let report_dir = args.report.as_deref().map(StagedDir::new).transpose()?;
+    if let (Some(staged), Some(dir)) = (&report_dir, &args.report) {
         let report = ReportJson {
             schema: "pipemeasure.calibration-report/1",
             device: &args.device,
@@ -779,8 +804,28 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             network: &network,
             check_points: check_report.as_ref(),
         };
-        write_report(dir, &cal, size, &report)?;
+        write_report(staged.path(), &cal, size, &report)
+            .with_context(|| format!("writing the report {}", dir.display()))?;
     }
+    let network_dir = match (&args.network, &colmap) {
+        (Some(dir), Some(net)) => {
+            let staged = StagedDir::new(dir)?;
+            net.model
+                .write(staged.path(), ModelFormat::Text)
+                .with_context(|| format!("writing the network {}", dir.display()))?;
+            Some(staged)
+        }
+        _ => None,
+    };
+    let staged_profile = profile
+        .stage(&out, args.force)
+        .with_context(|| format!("writing the profile {}", out.display()))?;
+    for staged in [report_dir, network_dir].into_iter().flatten() {
+        staged.commit()?;
+    }
+    let backup = staged_profile
+        .commit()
+        .with_context(|| format!("writing the profile {}", out.display()))?;
     outln!(
         "calibrated {} from {} frames: {} targets, {} observations, σ0 {:.4} px, residual RMS {:.4} px",
         args.device,
@@ -834,9 +879,6 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         );
     }
     if let (Some(dir), Some(net)) = (&args.network, &colmap) {
-        net.model
-            .write(dir, ModelFormat::Text)
-            .with_context(|| format!("writing the network {}", dir.display()))?;
         outln!(
             "adjusted network written to {} as a COLMAP model ({} images, {} targets; camera {}{})",
             dir.display(),
@@ -855,6 +897,9 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         );
     }
     outln!("profile written to {}", out.display());
+    if let Some(b) = backup {
+        outln!("the profile it replaces kept as {}", b.display());
+    }
     if let Some(dir) = &args.report {
         outln!("report written to {}", dir.display());
     }

@@ -6,7 +6,7 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use clap::Parser;
 use pipemeasure::camera::Term;
 use pipemeasure::experiments::pipe::{SiteResult, run_site};
@@ -24,8 +24,8 @@ pub struct Args {
     /// Device preset to imitate: p30, iphone11 or s10.
     #[arg(long, default_value = "p30")]
     like: String,
-    /// Frame width (the height follows 16:9).
-    #[arg(long, default_value_t = 1920)]
+    /// Frame width, 64–8192 (the height follows 16:9).
+    #[arg(long, default_value_t = 1920, value_parser = clap::value_parser!(u32).range(64..=8192))]
     width: u32,
     /// Frames of the lab video.
     #[arg(long, default_value_t = 40)]
@@ -67,10 +67,10 @@ fn s(p: &Path) -> String {
 /// Runs the demo.
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
     if pipemeasure::sim::devices::preset(&args.like).is_none() {
-        bail!(
+        return Err(super::usage(format!(
             "--like {}: not a device preset (p30, iphone11, s10)",
             args.like
-        );
+        )));
     }
     let start = std::time::Instant::now();
     let out = &args.out;

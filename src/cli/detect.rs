@@ -5,12 +5,13 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 use image::{DynamicImage, Rgb, RgbImage};
 use pipemeasure::detect::{DetectConfig, Detection, Detector};
+use pipemeasure::io::atomic::StagedDir;
 use pipemeasure::io::frames::{read_frame, write_png};
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::Globals;
 use super::progress::bar;
+use super::{Globals, NothingFound, values};
 
 /// Arguments of `detect`.
 #[derive(Debug, clap::Args)]
@@ -24,8 +25,8 @@ pub struct Args {
     /// Write each frame with the detected ellipses drawn into this folder (PNG).
     #[arg(long)]
     overlay: Option<PathBuf>,
-    /// Smallest semi-minor axis to report (px).
-    #[arg(long, default_value_t = 3.0)]
+    /// Smallest semi-minor axis to report (px, at least 1).
+    #[arg(long, default_value_t = 3.0, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
 }
 
@@ -42,10 +43,8 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         ..DetectConfig::default()
     };
     Detector::new(config.clone())?;
-    if let Some(dir) = &args.overlay {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("creating the overlay folder {}", dir.display()))?;
-    }
+    // Overlays go to a folder beside the destination, moved into place once every frame is done.
+    let overlay_dir = args.overlay.as_deref().map(StagedDir::new).transpose()?;
     let progress = bar(
         args.frames.len() as u64,
         "detecting",
@@ -61,7 +60,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
                 let detector = detector.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
                 let frame = read_frame(path)?;
                 let detection = detector.detect(&frame);
-                if let Some(dir) = &args.overlay {
+                if let Some(dir) = overlay_dir.as_ref().map(StagedDir::path) {
                     let stem = path
                         .file_stem()
                         .map(|s| s.to_string_lossy().into_owned())
@@ -77,9 +76,11 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         )
         .collect();
     progress.finish_and_clear();
+    let mut found = 0;
     for (path, result) in args.frames.iter().zip(results) {
         let detection =
             result.with_context(|| format!("detecting targets in {}", path.display()))?;
+        found += detection.ellipses.len();
         if args.json {
             let out = FrameOutput {
                 frame: path.display().to_string(),
@@ -108,6 +109,14 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
                 );
             }
         }
+    }
+    if let Some(dir) = overlay_dir {
+        dir.commit()?;
+    }
+    if found == 0 {
+        return Err(
+            NothingFound(format!("no target found in {} frame(s)", args.frames.len())).into(),
+        );
     }
     Ok(())
 }

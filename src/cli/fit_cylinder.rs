@@ -10,7 +10,7 @@ use pipemeasure::measure::{
 };
 use serde::Serialize;
 
-use super::Globals;
+use super::{Globals, usage, values};
 
 /// Arguments of `fit-cylinder`.
 #[derive(Debug, clap::Args)]
@@ -32,20 +32,20 @@ pub struct Args {
 #[derive(Debug, Default, clap::Args)]
 pub struct SearchArgs {
     /// Smallest radius to accept (m).
-    #[arg(long, default_value_t = 0.005)]
+    #[arg(long, default_value_t = 0.005, value_parser = values::non_negative)]
     radius_min: f64,
-    /// Largest radius to accept (m).
-    #[arg(long, default_value_t = 1.0)]
+    /// Largest radius to accept (m), above `--radius-min`.
+    #[arg(long, default_value_t = 1.0, value_parser = values::positive)]
     radius_max: f64,
     /// Keep only points near this point (`X,Y,Z`), with `--within`. For the main command in the
     /// measured frame: TLS coordinates when the targets give a similarity.
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, value_parser = values::point)]
     pub near: Option<Vector3<f64>>,
     /// Radius of the region of interest around `--near` (m).
-    #[arg(long)]
+    #[arg(long, value_parser = values::positive)]
     pub within: Option<f64>,
-    /// Only axes within 20° of this direction (`X,Y,Z`).
-    #[arg(long, value_parser = parse_vec3)]
+    /// Only axes within 20° of this direction (`X,Y,Z`, not all zero).
+    #[arg(long, value_parser = values::direction)]
     pub axis_hint: Option<Vector3<f64>>,
     /// Seed of the cylinder sampling.
     #[arg(long, default_value_t = 1)]
@@ -59,20 +59,27 @@ impl SearchArgs {
         match (self.near, self.within) {
             (Some(centre), Some(radius)) => Ok(Some(Region { centre, radius })),
             (None, None) => Ok(None),
-            _ => bail!("--near and --within go together"),
+            _ => Err(usage("--near and --within go together")),
         }
     }
 
-    /// The fitting configuration, checked.
+    /// The fitting configuration, checked: every value comes from an option, so what the
+    /// library refuses is a usage error.
     pub fn config(&self) -> Result<CylinderConfig> {
+        if self.radius_min >= self.radius_max {
+            return Err(usage(format!(
+                "--radius-min {} must be below --radius-max {}",
+                self.radius_min, self.radius_max
+            )));
+        }
         let config = CylinderConfig {
             radius_min: self.radius_min,
             radius_max: self.radius_max,
-            axis_hint: self.axis_hint.map(|h| (h.normalize(), 20f64.to_radians())),
+            axis_hint: self.axis_hint.map(|h| (h, 20f64.to_radians())),
             seed: self.seed,
             ..CylinderConfig::default()
         };
-        config.validate()?;
+        config.validate().map_err(|e| usage(e.to_string()))?;
         Ok(config)
     }
 }
@@ -88,12 +95,8 @@ pub(super) fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>> {
             read.skipped_non_finite
         );
     }
-    Ok(read.cloud.points.iter().map(|p| p.coords).collect())
-}
-
-/// Parses `X,Y,Z` into a vector.
-pub(super) fn parse_vec3(s: &str) -> Result<Vector3<f64>, String> {
-    super::simulate::parse_xyz(s).map(Vector3::from)
+    // In place: a point and its coordinate vector have the same layout, so no second copy.
+    Ok(read.cloud.points.into_iter().map(|p| p.coords).collect())
 }
 
 #[derive(Serialize)]
@@ -127,12 +130,12 @@ fn out_of(f: &CylinderFit) -> FitOut {
 
 pub fn run(args: &Args, _globals: Globals) -> Result<()> {
     let region = args.search.region()?;
+    let config = args.search.config()?;
     let mut points = read_points(&args.cloud)?;
     if let Some(r) = &region {
         points.retain(|p| r.contains(p));
     }
     let cloud = Cloud::new(&points).with_context(|| format!("{}", args.cloud.display()))?;
-    let config = args.search.config()?;
     let fits = if args.all {
         let all = fit_all_cylinders(&cloud, &config, 16);
         if all.is_empty() {

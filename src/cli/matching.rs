@@ -13,13 +13,13 @@ use pipemeasure::calibrate::views::TargetObservation;
 use pipemeasure::camera::Intrinsics;
 use pipemeasure::detect::{DetectConfig, detect_frame_files};
 use pipemeasure::geometry::conic::Ellipse;
-use pipemeasure::io::atomic::write_bytes_atomic;
+use pipemeasure::io::atomic::{check_writable, write_bytes_atomic};
 use pipemeasure::io::colmap::Reconstruction;
 use pipemeasure::measure::{SiteTargets, match_site_targets};
 use serde::Serialize;
 
-use super::Globals;
 use super::progress::bar;
+use super::{Globals, NothingFound, values};
 
 /// Arguments of `match`.
 #[derive(Debug, clap::Args)]
@@ -42,8 +42,8 @@ pub struct Args {
     /// Do not correct the ellipse centres with Algorithm 3.
     #[arg(long)]
     no_eccentricity: bool,
-    /// Smallest semi-minor axis of a target to use (px).
-    #[arg(long, default_value_t = 4.0)]
+    /// Smallest semi-minor axis of a target to use (px, at least 1).
+    #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
 }
 
@@ -142,6 +142,7 @@ fn intrinsics_for(
 pub(super) fn detect_named_frames(
     dir: &Path,
     names: &[String],
+    size: (u32, u32),
     min_semi_minor: f64,
     quiet: bool,
 ) -> Result<Vec<Vec<Ellipse>>> {
@@ -151,7 +152,7 @@ pub(super) fn detect_named_frames(
     };
     let progress = bar(names.len() as u64, "detecting", quiet);
     let paths: Vec<PathBuf> = names.iter().map(|n| dir.join(n)).collect();
-    let detected = detect_frame_files(&paths, &config, &|| progress.inc(1))
+    let detected = detect_frame_files(&paths, size, &config, &|| progress.inc(1))
         .context("detecting the targets of the model's frames")?;
     progress.finish_and_clear();
     Ok(detected)
@@ -232,6 +233,9 @@ fn output(
 }
 
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    if let Some(path) = &args.json {
+        check_writable(path)?;
+    }
     let model = Reconstruction::read(&args.sfm)?;
     if model.images.is_empty() {
         bail!("the model {} has no registered images", args.sfm.display());
@@ -266,8 +270,14 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         ),
     };
     let names: Vec<String> = a1.frames.iter().map(|f| f.name.clone()).collect();
-    let detected = detect_named_frames(&args.frames, &names, args.min_semi_minor, globals.quiet)?;
     let size = model_image_size(&model)?;
+    let detected = detect_named_frames(
+        &args.frames,
+        &names,
+        size,
+        args.min_semi_minor,
+        globals.quiet,
+    )?;
     let config = MatchConfig {
         robust_triangulation: !args.no_robust_triangulation,
         correct_before_triangulation: !args.no_eccentricity,
@@ -320,7 +330,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         }
     }
     if m.tracks.is_empty() {
-        bail!("no target was matched in two or more frames");
+        return Err(NothingFound("no target was matched in two or more frames".into()).into());
     }
     Ok(())
 }

@@ -9,14 +9,16 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use nalgebra::Point3;
-use pipemeasure::io::atomic::write_bytes_atomic;
-use pipemeasure::io::ply::PointCloud;
+use std::io::Write as _;
+
+use pipemeasure::io::atomic::{StagedFile, check_writable};
+use pipemeasure::io::ply::{PointCloud, stage_binary};
 use pipemeasure::measure::PipeMeasurement;
 use pipemeasure::measure::site::{ScaleTargetOut, SiteReport, SiteRequest, measure_site};
 
-use super::Globals;
 use super::fit_cylinder::{SearchArgs, read_points};
 use super::progress::bar;
+use super::{Globals, values};
 
 /// Arguments of the main command (given without a subcommand).
 #[derive(Debug, Default, clap::Args)]
@@ -44,8 +46,9 @@ pub struct Args {
     /// The TLS scan (PLY or E57): the same pipe is fitted there as the reference.
     #[arg(long)]
     tls_scan: Option<PathBuf>,
-    /// The cloud's scale (metres per cloud unit), instead of the targets (1 for a metric cloud).
-    #[arg(long)]
+    /// The cloud's scale (metres per cloud unit, positive), instead of the targets (1 for a
+    /// metric cloud).
+    #[arg(long, value_parser = values::positive)]
     scale: Option<f64>,
     /// Write the report as JSON (atomically).
     #[arg(long)]
@@ -55,8 +58,8 @@ pub struct Args {
     ply_out: Option<PathBuf>,
     #[command(flatten)]
     search: SearchArgs,
-    /// Smallest semi-minor axis of a target to use (px).
-    #[arg(long, default_value_t = 4.0)]
+    /// Smallest semi-minor axis of a target to use (px, at least 1).
+    #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
 }
 
@@ -116,6 +119,10 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
             eprintln!("{s}");
         }
     };
+    // The destinations first: minutes of work are not lost to a missing folder.
+    for path in [&args.json, &args.ply_out].into_iter().flatten() {
+        check_writable(path)?;
+    }
     let request = SiteRequest {
         cloud: cloud.to_path_buf(),
         device: args.device.clone(),
@@ -137,11 +144,22 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
         progress.inc(1);
     })?;
     progress.finish_and_clear();
-    if let Some(path) = &args.ply_out {
-        pipemeasure::io::ply::write_binary(path, &coloured_inliers(&m.pipe))?;
-    }
-    if let Some(path) = &args.json {
-        write_bytes_atomic(path, serde_json::to_string_pretty(&m.report)?.as_bytes())?;
+    // Both outputs written, then both moved into place: all or nothing.
+    let ply = args
+        .ply_out
+        .as_ref()
+        .map(|path| stage_binary(path, &coloured_inliers(&m.pipe)))
+        .transpose()?;
+    let json = args
+        .json
+        .as_ref()
+        .map(|path| {
+            let text = serde_json::to_string_pretty(&m.report)?;
+            Ok::<_, anyhow::Error>(StagedFile::write(path, |w| w.write_all(text.as_bytes()))?)
+        })
+        .transpose()?;
+    for staged in [ply, json].into_iter().flatten() {
+        staged.commit()?;
     }
     print_summary(&m.report, args)?;
     Ok(())

@@ -28,6 +28,7 @@ mod profile;
 mod progress;
 mod simulate;
 mod undistort;
+mod values;
 
 use std::process::ExitCode;
 
@@ -120,11 +121,58 @@ pub fn main() -> ExitCode {
         // The reader of our output went away (`| head`): not a failure.
         Err(err) if is_broken_pipe(&err) => ExitCode::SUCCESS,
         Err(err) => {
-            eprintln!("error: {err:#}");
+            eprintln!("error: {}", error_message(&err));
             exit_code_for(&err)
         }
     }
 }
+
+/// The error and its causes joined by `: `, each cause once: a cause whose text the message
+/// already holds (an error that prints its source, as many do) is not repeated.
+fn error_message(err: &anyhow::Error) -> String {
+    let mut message = String::new();
+    for cause in err.chain() {
+        let text = cause.to_string();
+        if message.contains(&text) {
+            continue;
+        }
+        if !message.is_empty() {
+            message.push_str(": ");
+        }
+        message.push_str(&text);
+    }
+    message
+}
+
+/// A command-line value that clap cannot check on its own (two options that contradict each
+/// other, a value the library refuses): exit code 2, like clap's own usage errors.
+#[derive(Debug)]
+pub struct UsageError(pub String);
+
+impl std::fmt::Display for UsageError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for UsageError {}
+
+/// A usage error (exit code 2) with this message.
+pub fn usage(message: impl Into<String>) -> anyhow::Error {
+    UsageError(message.into()).into()
+}
+
+/// A command that ran and found nothing (no target, no match, no cylinder): exit code 3.
+#[derive(Debug)]
+pub struct NothingFound(pub String);
+
+impl std::fmt::Display for NothingFound {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for NothingFound {}
 
 fn run(command: Command, globals: Globals) -> Result<()> {
     match command {
@@ -147,13 +195,22 @@ fn is_broken_pipe(err: &anyhow::Error) -> bool {
     })
 }
 
-/// 3 when nothing was found (no cylinder), 1 for every other failure.
+/// 2 for an invalid option value, 3 when nothing was found (no target, no match, no
+/// cylinder), 1 for every other failure.
 fn exit_code_for(err: &anyhow::Error) -> ExitCode {
+    use pipemeasure::measure::CylinderError;
+    use pipemeasure::measure::scale::ScaleError;
+    if err.chain().any(|e| e.is::<UsageError>()) {
+        return ExitCode::from(2);
+    }
     let nothing_found = err.chain().any(|e| {
-        matches!(
-            e.downcast_ref::<pipemeasure::measure::CylinderError>(),
-            Some(pipemeasure::measure::CylinderError::NotFound { .. })
-        )
+        e.is::<NothingFound>()
+            || matches!(
+                e.downcast_ref::<CylinderError>(),
+                Some(CylinderError::NotFound { .. })
+            )
+            || e.downcast_ref::<ScaleError>()
+                .is_some_and(ScaleError::is_nothing_found)
     });
     ExitCode::from(if nothing_found { 3 } else { 1 })
 }

@@ -3,6 +3,7 @@
 use std::fmt::Write as _;
 
 use anyhow::{Result, bail};
+use pipemeasure::calibrate::checks::check_distortion;
 use pipemeasure::camera::Term;
 use pipemeasure::camera::convert::{
     ColmapModel, Converted, colmap_from_brown, opencv_from_brown, simplest_colmap_model,
@@ -52,6 +53,18 @@ pub fn run(cmd: &Command) -> Result<()> {
                 outln!("{}", profile.to_json());
             } else {
                 out!("{}", show(&profile, &path.display().to_string()));
+            }
+            let size = (profile.image.width, profile.image.height);
+            let check = check_distortion(&profile.intrinsics, size);
+            if !check.ok {
+                eprintln!(
+                    "warning: {}: the distortion cannot be inverted over the frame: it folds back \
+                     from {:.0} px from the principal point (the frame reaches {:.0} px); \
+                     `undistort` refuses this profile",
+                    path.display(),
+                    check.first_failure_radius_px.unwrap_or(0.0),
+                    check.frame_radius_px
+                );
             }
         }
         Command::List => {

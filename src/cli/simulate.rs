@@ -13,8 +13,8 @@ use pipemeasure::sim::trajectory::MotionConfig;
 use pipemeasure::sim::truth::Truth;
 use pipemeasure::sim::video::{VideoConfig, speeds};
 
-use super::Globals;
 use super::progress::bar;
+use super::{Globals, usage, values};
 
 /// `simulate` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -35,8 +35,9 @@ pub struct Common {
     /// Output folder (frames/, truth.json, sparse/).
     #[arg(long)]
     out: PathBuf,
-    /// Frame width in pixels (intrinsics scale with it; the height follows the 16:9 aspect).
-    #[arg(long, default_value_t = 3840)]
+    /// Frame width in pixels, 64–8192 (intrinsics scale with it; the height follows the 16:9
+    /// aspect).
+    #[arg(long, default_value_t = 3840, value_parser = clap::value_parser!(u32).range(64..=8192))]
     width: u32,
     /// Frame height in pixels (default: from the width).
     #[arg(long)]
@@ -44,26 +45,26 @@ pub struct Common {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Stratified samples per axis at edges (N×N).
-    #[arg(long, default_value_t = 4)]
+    /// Stratified samples per axis at edges (N×N), 1–16.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
     samples: u32,
     /// Supersample every pixel instead of only those with an edge.
     #[arg(long)]
     no_adaptive: bool,
-    /// σ of the Gaussian optical blur (px).
-    #[arg(long, default_value_t = 0.7)]
+    /// σ of the Gaussian optical blur (px, 0 or more).
+    #[arg(long, default_value_t = 0.7, value_parser = values::non_negative)]
     blur: f64,
-    /// Read noise σ (8-bit levels).
-    #[arg(long, default_value_t = 1.0)]
+    /// Read noise σ (8-bit levels, 0 or more).
+    #[arg(long, default_value_t = 1.0, value_parser = values::non_negative)]
     read_noise: f64,
-    /// Shot noise: variance per grey level of signal.
-    #[arg(long, default_value_t = 0.02)]
+    /// Shot noise: variance per grey level of signal (0 or more).
+    #[arg(long, default_value_t = 0.02, value_parser = values::non_negative)]
     shot_noise: f64,
-    /// Brightness loss at the image corners (0–1).
-    #[arg(long, default_value_t = 0.25)]
+    /// Brightness loss at the image corners (0 to below 1).
+    #[arg(long, default_value_t = 0.25, value_parser = values::below_one)]
     vignetting: f64,
-    /// Write JPEG frames with this quality instead of PNG.
-    #[arg(long)]
+    /// Write JPEG frames with this quality (1–100) instead of PNG.
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
     jpeg_quality: Option<u8>,
     /// Sparse model: the simulated stand-in, or the real COLMAP run on the frames.
     #[arg(long, value_enum, default_value = "stand-in")]
@@ -96,10 +97,10 @@ pub struct VideoArgs {
     #[arg(long, value_name = "MIN,MAX", requires = "video", default_value = "0.05,0.15", value_parser = parse_range)]
     linear_speed: [f64; 2],
     /// RMS angular rate of the hand tremor, °/s (0 = none).
-    #[arg(long, value_name = "DEG_S", requires = "video", default_value_t = 0.5, value_parser = parse_non_negative)]
+    #[arg(long, value_name = "DEG_S", requires = "video", default_value_t = 0.5, value_parser = values::non_negative)]
     tremor: f64,
     /// Length of the pause between two extracted frames, s (0 = none).
-    #[arg(long, value_name = "S", requires = "video", default_value_t = 0.2, value_parser = parse_non_negative)]
+    #[arg(long, value_name = "S", requires = "video", default_value_t = 0.2, value_parser = values::non_negative)]
     pause: f64,
     /// Autofocus on: the principal distance follows the focus distance (the preset's lens).
     #[arg(long, requires = "video")]
@@ -119,25 +120,16 @@ pub struct VideoArgs {
 
 /// Parses a duration in milliseconds into seconds.
 fn parse_ms(s: &str) -> Result<f64, String> {
-    let ms = parse_non_negative(s)?;
+    let ms = values::non_negative(s)?;
     if ms > 1000.0 {
         return Err(format!("`{s}`: at most 1000 ms"));
     }
     Ok(ms / 1000.0)
 }
 
-/// Parses a finite number ≥ 0.
-fn parse_non_negative(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
-        Ok(_) => Err(format!("`{s}`: must be a finite number ≥ 0")),
-        Err(e) => Err(format!("`{s}`: {e}")),
-    }
-}
-
 /// Parses a frame rate between 1 and 240.
 fn parse_fps(s: &str) -> Result<f64, String> {
-    let v = parse_non_negative(s)?;
+    let v = values::non_negative(s)?;
     if !(1.0..=240.0).contains(&v) {
         return Err(format!("`{s}`: must be between 1 and 240 frames/s"));
     }
@@ -148,7 +140,7 @@ fn parse_fps(s: &str) -> Result<f64, String> {
 fn parse_range(s: &str) -> Result<[f64; 2], String> {
     let v: Vec<f64> = s
         .split(',')
-        .map(parse_non_negative)
+        .map(values::non_negative)
         .collect::<Result<_, _>>()?;
     match v.as_slice() {
         [lo, hi] if lo <= hi => Ok([*lo, *hi]),
@@ -208,33 +200,20 @@ pub struct SiteArgs {
     /// Number of targets on the wall.
     #[arg(long, default_value_t = 8)]
     targets: usize,
-    /// σ of the dense observations (px).
-    #[arg(long, default_value_t = 0.3)]
+    /// σ of the dense observations (px, 0 or more).
+    #[arg(long, default_value_t = 0.3, value_parser = values::non_negative)]
     dense_noise: f64,
     /// Offset added to the TLS coordinates, e.g. 500000,5600000,0 (site coordinates).
-    #[arg(long, value_parser = parse_xyz)]
-    tls_offset: Option<[f64; 3]>,
-}
-
-/// Parses `X,Y,Z`.
-pub fn parse_xyz(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|p| p.trim().parse::<f64>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("`{s}`: {e}"))?;
-    match v.as_slice() {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
-        _ => Err(format!("`{s}`: expected three numbers X,Y,Z")),
-    }
+    #[arg(long, value_parser = values::point)]
+    tls_offset: Option<nalgebra::Vector3<f64>>,
 }
 
 fn options(c: &Common) -> Result<SimulateOptions> {
     let Some(p) = preset(&c.like) else {
-        bail!(
-            "unknown device preset `{}`; presets: p30, iphone11, s10",
+        return Err(usage(format!(
+            "--like {}: unknown device preset; presets: p30, iphone11, s10",
             c.like
-        );
+        )));
     };
     let height = c.height.unwrap_or_else(|| {
         (f64::from(c.width) * f64::from(p.camera.height) / f64::from(p.camera.width)).round() as u32
@@ -262,18 +241,6 @@ fn options(c: &Common) -> Result<SimulateOptions> {
         video: video_config(&c.video),
         ..SimulateOptions::default()
     })
-}
-
-/// Video options the library refuses (they depend on each other: an exposure longer than a
-/// frame at --fps, a pause too long for the interval) are usage errors: clap prints them with
-/// the usage line and exits with code 2.
-fn check_video(opts: &SimulateOptions) {
-    if let Some(Err(e)) = opts.video.as_ref().map(VideoConfig::validate) {
-        use clap::CommandFactory;
-        super::Cli::command()
-            .error(clap::error::ErrorKind::ValueValidation, e.to_string())
-            .exit();
-    }
 }
 
 /// What the video added, for the summary line.
@@ -352,7 +319,10 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
                 floor: !args.no_floor,
                 ..LabConfig::default()
             };
-            check_video(&opts);
+            // Every value comes from an option: what the simulator refuses (the video's options
+            // included) is a usage error.
+            opts.validate().map_err(|e| usage(e.to_string()))?;
+            lab.validate().map_err(|e| usage(e.to_string()))?;
             let total = frames_to_render(&opts, args.frames).unwrap_or(args.frames);
             let progress = bar(total as u64, "rendering", globals.quiet);
             let truth = simulate_lab(&opts, &lab, &args.common.out, &|done| {
@@ -384,9 +354,10 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             site.site.targets = args.targets;
             site.dense.noise_px = args.dense_noise;
             if let Some(o) = args.tls_offset {
-                site.tls.offset = o;
+                site.tls.offset = o.into();
             }
-            check_video(&opts);
+            opts.validate().map_err(|e| usage(e.to_string()))?;
+            site.site.validate().map_err(|e| usage(e.to_string()))?;
             let total = frames_to_render(&opts, args.frames).unwrap_or(args.frames);
             let progress = bar(total as u64, "rendering", globals.quiet);
             let truth = simulate_site(&opts, &site, &args.common.out, &|done| {

@@ -4,9 +4,11 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use pipemeasure::calibrate::checks::check_distortion;
 use pipemeasure::camera::undistort_map::{Interpolation, OutputView, RemapTable, pinhole_for_view};
+use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
 use pipemeasure::io::colmap::{CameraId, ColmapCamera, ColmapModel, write_cameras_text};
-use pipemeasure::io::frames::{list_frames, read_frame, write_png};
+use pipemeasure::io::frames::{first_of_another_size, list_frames, read_frame_sized, write_png};
 use pipemeasure::profile::load_device;
 use rayon::prelude::*;
 
@@ -50,21 +52,36 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let (profile_path, profile) = load_device(&args.device)?;
     let frames = list_frames(&args.input).context("listing the frames to undistort")?;
     let camera = profile.camera();
+    let size = (camera.width, camera.height);
+    check_writable_dir(&args.output)?;
 
-    // Check every frame's size before writing anything.
-    for f in &frames {
-        let (w, h) = image::image_dimensions(f)
-            .with_context(|| format!("reading the size of frame {}", f.display()))?;
-        if (w, h) != (camera.width, camera.height) {
-            bail!(
-                "frame {} is {w}x{h} but device profile {} ({}) is for {}x{} frames",
-                f.display(),
-                profile.device,
-                profile_path.display(),
-                camera.width,
-                camera.height
-            );
-        }
+    // Every frame's size from its header before anything is decoded or written.
+    if let Some((f, (w, h))) =
+        first_of_another_size(&frames, size).context("reading the size of a frame")?
+    {
+        bail!(
+            "frame {} is {w}x{h} but device profile {} ({}) is for {}x{} frames",
+            f.display(),
+            profile.device,
+            profile_path.display(),
+            camera.width,
+            camera.height
+        );
+    }
+    // A distortion that folds back inside the frame cannot be inverted there: the undistorted
+    // frames would be black where it folds (all black when it folds everywhere).
+    let check = check_distortion(&camera.intrinsics, size);
+    if !check.ok {
+        bail!(
+            "device profile {} ({}): its distortion cannot be inverted over the frame (it folds \
+             back from {:.0} px from the principal point; the frame reaches {:.0} px, {} of the \
+             checked pixels fail): frames cannot be undistorted with it",
+            profile.device,
+            profile_path.display(),
+            check.first_failure_radius_px.unwrap_or(0.0),
+            check.frame_radius_px,
+            check.failing_pixels
+        );
     }
 
     let view = match args.view {
@@ -80,15 +97,16 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         .with_context(|| format!("choosing the output view for {}", profile_path.display()))?;
     let table = RemapTable::new(&camera, target, interpolation);
 
-    std::fs::create_dir_all(&args.output)
-        .with_context(|| format!("creating the output folder {}", args.output.display()))?;
+    // Everything goes to a folder beside OUT_DIR and is moved into it at the end: a failure
+    // leaves OUT_DIR as it was.
+    let staged = StagedDir::new(&args.output)?;
     let progress = bar(frames.len() as u64, "undistorting", globals.quiet);
     frames.par_iter().try_for_each(|f| -> Result<()> {
-        let frame = read_frame(f)?;
+        let frame = read_frame_sized(f, Some(size))?;
         let out = table
             .apply(&frame)
             .with_context(|| format!("undistorting {}", f.display()))?;
-        write_png(&output_name(&args.output, f), &out)?;
+        write_png(&output_name(staged.path(), f), &out)?;
         progress.inc(1);
         Ok(())
     })?;
@@ -100,8 +118,12 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         height: u64::from(target.height),
         params: vec![target.fx, target.fy, target.cx, target.cy],
     };
+    write_cameras_text(
+        &staged.path().join("cameras.txt"),
+        &BTreeMap::from([(CameraId(1), pinhole)]),
+    )?;
+    staged.commit()?;
     let cameras_txt = args.output.join("cameras.txt");
-    write_cameras_text(&cameras_txt, &BTreeMap::from([(CameraId(1), pinhole)]))?;
     outln!(
         "undistorted {} frames with {} into {}\nPINHOLE camera: fx {:.4} fy {:.4} cx {:.4} cy {:.4} ({})",
         frames.len(),

@@ -444,26 +444,41 @@ pub enum DetectFilesError {
 
 /// Detects the targets of frame files in parallel (one frame in memory per worker, one
 /// [`Detector`] per worker): per file, the detected ellipses in observed pixels, in the order
-/// of `paths`. `progress` is called once per frame done.
+/// of `paths`. Every frame must be `size` = (width, height) (the SfM model's camera): each
+/// file's header is checked before any frame is decoded, and the decoder may allocate only what
+/// a frame of that size needs ([`crate::io::frames::read_frame_sized`]). `progress` is called
+/// once per frame done.
 ///
 /// # Errors
 ///
 /// [`DetectFilesError`]: a bad configuration, or the first frame (in `paths` order) that cannot
-/// be read.
+/// be read or is of another size.
 pub fn detect_frame_files(
     paths: &[std::path::PathBuf],
+    size: (u32, u32),
     config: &DetectConfig,
     progress: &(dyn Fn() + Sync),
 ) -> Result<Vec<Vec<Ellipse>>, DetectFilesError> {
     use rayon::prelude::*;
     Detector::new(config.clone())?;
+    // Every header first: a frame of another size fails before minutes of detection.
+    if let Some((path, found)) = crate::io::frames::first_of_another_size(paths, size)? {
+        return Err(crate::io::ReadError::new(
+            path,
+            crate::io::ReadErrorKind::Invalid(format!(
+                "the frame is {}x{} but the model's camera is {}x{}: the frames and the model do not belong together",
+                found.0, found.1, size.0, size.1
+            )),
+        )
+        .into());
+    }
     paths
         .par_iter()
         .map_init(
             || Detector::new(config.clone()),
             |detector, path| {
                 let detector = detector.as_mut().map_err(|e| e.clone())?;
-                let image = crate::io::frames::read_frame(path)?;
+                let image = crate::io::frames::read_frame_sized(path, Some(size))?;
                 let ellipses = detector
                     .detect(&image)
                     .ellipses

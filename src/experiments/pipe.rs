@@ -185,7 +185,8 @@ pub fn run_site(
         .collect();
     log(&format!("detecting targets in {} frames", paths.len()));
     let detected: Vec<Vec<Ellipse>> =
-        detect_frame_files(&paths, &DetectConfig::default(), &|| {}).map_err(|e| e.to_string())?;
+        detect_frame_files(&paths, size, &DetectConfig::default(), &|| {})
+            .map_err(|e| e.to_string())?;
 
     let profile = profile.scaled(size.0, size.1);
     let mut rows = Vec::new();

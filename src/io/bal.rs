@@ -56,7 +56,21 @@ pub fn parse_bal(path: &Path, text: &str) -> Result<BalProblem, ReadError> {
     let n_cameras = tokens.count(path, "num_cameras")?;
     let n_points = tokens.count(path, "num_points")?;
     let n_observations = tokens.count(path, "num_observations")?;
-    let mut observations = Vec::with_capacity(n_observations.min(1 << 24));
+    // Every number takes at least two bytes (a digit and a separator): counts the text cannot
+    // hold are refused before anything is allocated or looped.
+    let needed = 8u128 * n_observations as u128 + 18 * n_cameras as u128 + 6 * n_points as u128;
+    if needed > text.len() as u128 {
+        return Err(ReadError::at_line(
+            path,
+            1,
+            ReadErrorKind::Truncated(format!(
+                "the header declares {n_cameras} cameras, {n_points} points and {n_observations} \
+                 observations, which need at least {needed} bytes; the file has {}",
+                text.len()
+            )),
+        ));
+    }
+    let mut observations = Vec::with_capacity(n_observations);
     for _ in 0..n_observations {
         let camera = tokens.count(path, "camera_index")?;
         let line = tokens.line;
@@ -79,7 +93,7 @@ pub fn parse_bal(path: &Path, text: &str) -> Result<BalProblem, ReadError> {
             xy: [x, y],
         });
     }
-    let mut cameras = Vec::with_capacity(n_cameras.min(1 << 20));
+    let mut cameras = Vec::with_capacity(n_cameras);
     for _ in 0..n_cameras {
         let mut c = [0.0; 9];
         for v in &mut c {
@@ -87,7 +101,7 @@ pub fn parse_bal(path: &Path, text: &str) -> Result<BalProblem, ReadError> {
         }
         cameras.push(c);
     }
-    let mut points = Vec::with_capacity(n_points.min(1 << 24));
+    let mut points = Vec::with_capacity(n_points);
     for _ in 0..n_points {
         let mut p = [0.0; 3];
         for v in &mut p {
@@ -207,5 +221,20 @@ mod tests {
         let truncated = &TINY[..TINY.len() - 6];
         let e = parse_bal(Path::new("tiny.txt"), truncated).unwrap_err();
         assert!(matches!(e.kind, ReadErrorKind::Truncated(_)), "{e}");
+    }
+
+    /// Issue 21: a 40-byte file declaring 10⁹ observations reserved 512 MB before failing.
+    #[test]
+    fn issue_21_lying_counts_are_refused_before_allocating() {
+        let e = parse_bal(
+            Path::new("lie.txt"),
+            "1000000000 1000000000 1000000000\n0 0 1 1\n",
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.starts_with("lie.txt:1: file ends early: the header declares 1000000000 cameras"),
+            "{e}"
+        );
     }
 }

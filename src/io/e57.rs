@@ -7,7 +7,7 @@ use std::path::Path;
 
 use nalgebra::Point3;
 
-use super::error::{ReadError, ReadErrorKind};
+use super::error::{ReadError, ReadErrorKind, open_file};
 use super::ply::{PlyRead, PointCloud};
 
 /// Reads every scan of an E57 file into one cloud (colours and intensity are not kept).
@@ -16,11 +16,26 @@ use super::ply::{PlyRead, PointCloud};
 ///
 /// [`ReadError`] naming the file: missing, not E57, corrupt, or a scan without coordinates.
 pub fn read(path: &Path) -> Result<PlyRead, ReadError> {
-    if !path.exists() {
-        return Err(ReadError::new(path, ReadErrorKind::NotFound));
-    }
+    let file = open_file(path)?;
+    read_from(path, std::io::BufReader::new(file))
+}
+
+/// Reads an E57 file held in memory; `path` only names it in errors.
+///
+/// # Errors
+///
+/// As [`read`].
+pub fn parse(path: &Path, bytes: &[u8]) -> Result<PlyRead, ReadError> {
+    read_from(path, std::io::Cursor::new(bytes))
+}
+
+/// Reads every scan of the E57 data in `source`.
+fn read_from<T: std::io::Read + std::io::Seek>(
+    path: &Path,
+    source: T,
+) -> Result<PlyRead, ReadError> {
     let invalid = |e: e57::Error| ReadError::new(path, ReadErrorKind::Invalid(format!("E57: {e}")));
-    let mut reader = e57::E57Reader::from_file(path).map_err(invalid)?;
+    let mut reader = e57::E57Reader::new(source).map_err(invalid)?;
     let mut points = Vec::new();
     let (mut in_file, mut skipped) = (0usize, 0usize);
     for (k, pc) in reader.pointclouds().iter().enumerate() {
@@ -47,7 +62,8 @@ pub fn read(path: &Path) -> Result<PlyRead, ReadError> {
     })
 }
 
-/// Reads a cloud by its extension: `.e57` through [`read`], anything else as PLY.
+/// Reads the points of a cloud by its extension: `.e57` through [`read`], anything else as PLY
+/// through [`super::ply::read_points`] (coordinates only, as measuring needs).
 ///
 /// # Errors
 ///
@@ -59,7 +75,7 @@ pub fn read_cloud(path: &Path) -> Result<PlyRead, ReadError> {
     if is_e57 {
         read(path)
     } else {
-        super::ply::read(path)
+        super::ply::read_points(path)
     }
 }
 

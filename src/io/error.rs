@@ -72,6 +72,9 @@ pub enum ReadErrorKind {
     /// The file or directory does not exist.
     #[error("not found")]
     NotFound,
+    /// A file was expected, a directory was found.
+    #[error("is a directory, expected a file")]
+    IsDirectory,
     /// A text field could not be parsed.
     #[error("field {field} is {value:?}, expected {expected}")]
     Field {
@@ -136,12 +139,25 @@ impl WriteError {
     }
 }
 
-/// Maps an `io::Error` on opening a file to a read error (not found is its own kind).
+/// Maps an `io::Error` on opening a file to a read error (not found and a directory where a file
+/// was expected are kinds of their own).
 pub(crate) fn open_error(path: impl Into<PathBuf>, e: std::io::Error) -> ReadError {
-    let kind = if e.kind() == std::io::ErrorKind::NotFound {
-        ReadErrorKind::NotFound
-    } else {
-        ReadErrorKind::Io(e)
+    let path = path.into();
+    let kind = match e.kind() {
+        std::io::ErrorKind::NotFound => ReadErrorKind::NotFound,
+        std::io::ErrorKind::IsADirectory => ReadErrorKind::IsDirectory,
+        _ if path.is_dir() => ReadErrorKind::IsDirectory,
+        _ => ReadErrorKind::Io(e),
     };
     ReadError::new(path, kind)
+}
+
+/// Opens a file for reading; a directory is refused here (the OS opens directories and fails
+/// only at the first read, with a less helpful message).
+pub(crate) fn open_file(path: &std::path::Path) -> Result<std::fs::File, ReadError> {
+    let file = std::fs::File::open(path).map_err(|e| open_error(path, e))?;
+    match file.metadata() {
+        Ok(m) if m.is_dir() => Err(ReadError::new(path, ReadErrorKind::IsDirectory)),
+        _ => Ok(file),
+    }
 }

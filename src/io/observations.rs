@@ -120,6 +120,15 @@ impl DenseObservations {
     /// indices out of range.
     pub fn read(path: &Path) -> Result<Self, ReadError> {
         let data = std::fs::read(path).map_err(|e| open_error(path, e))?;
+        Self::parse(path, &data)
+    }
+
+    /// Parses a set held in memory (`path` only names it in errors).
+    ///
+    /// # Errors
+    ///
+    /// As [`DenseObservations::read`].
+    pub fn parse(path: &Path, data: &[u8]) -> Result<Self, ReadError> {
         let mut pos = 0usize;
         let take = |pos: &mut usize, n: usize, what: &str| -> Result<&[u8], ReadError> {
             if data.len() - *pos < n {

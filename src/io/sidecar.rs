@@ -55,7 +55,15 @@ impl FramesSidecar {
     /// [`ReadError`] naming the file and the offending field.
     pub fn read(path: &Path) -> Result<Self, ReadError> {
         let text = std::fs::read_to_string(path).map_err(|e| open_error(path, e))?;
-        let sidecar: FramesSidecar = serde_json::from_str(&text).map_err(|e| {
+        Self::parse(&text, path)
+    }
+
+    /// [`FramesSidecar::read`] on text already read; `path` names it in errors.
+    ///
+    /// # Errors
+    /// [`ReadError`] naming `path` and the offending field.
+    pub fn parse(text: &str, path: &Path) -> Result<Self, ReadError> {
+        let sidecar: FramesSidecar = serde_json::from_str(text).map_err(|e| {
             ReadError::at_line(
                 path,
                 e.line(),
@@ -92,9 +100,17 @@ impl FramesSidecar {
                     format!("is {}, expected a finite time", f.time_s),
                 ));
             }
+            // A neighbour listed twice would be detected twice and counted twice.
+            let mut neighbour_names = std::collections::HashSet::new();
             for (j, n) in f.neighbours.iter().enumerate() {
                 let at = |what: &str| format!("frames[{i}].neighbours[{j}].{what}");
                 check_name(&n.name).map_err(|m| (at("name"), m))?;
+                if !neighbour_names.insert(n.name.as_str()) {
+                    return Err((
+                        at("name"),
+                        format!("{:?} is listed twice for this frame", n.name),
+                    ));
+                }
                 if !(n.dt_s.is_finite() && n.dt_s != 0.0 && n.dt_s.abs() <= MAX_NEIGHBOUR_DT_S) {
                     return Err((
                         at("dt_s"),
@@ -109,7 +125,8 @@ impl FramesSidecar {
         Ok(())
     }
 
-    /// The neighbours of the frame `name`, if listed.
+    /// The neighbours of the frame `name`, if listed (a linear search: for many names, index
+    /// [`FramesSidecar::frames`] by name once).
     #[must_use]
     pub fn neighbours_of(&self, name: &str) -> &[NeighbourEntry] {
         self.frames
@@ -181,5 +198,32 @@ mod tests {
         let (_d, p) = write("{\"schema\": 3,\n}");
         let e = FramesSidecar::read(&p).unwrap_err().to_string();
         assert!(e.contains("frames.json:"), "{e}");
+    }
+
+    /// A neighbour listed twice for one frame would be decoded and detected twice (and a
+    /// hostile sidecar could list one frame's neighbour millions of times).
+    #[test]
+    fn issue_21_a_neighbour_listed_twice_is_refused() {
+        let (_d, p) = write(
+            r#"{"schema":"pipemeasure.frames/1","frames":[{"name":"a.png","time_s":0,"neighbours":[{"name":"b.png","dt_s":0.04},{"name":"b.png","dt_s":-0.04}]}]}"#,
+        );
+        let e = FramesSidecar::read(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("frames.json")
+                && e.contains("frames[0].neighbours[1].name")
+                && e.contains("listed twice"),
+            "{e}"
+        );
+    }
+
+    /// One object per file, as for profiles: a second one is an error, not ignored.
+    #[test]
+    fn issue_21_a_sidecar_followed_by_a_second_object_is_refused() {
+        let one = r#"{"schema":"pipemeasure.frames/1","frames":[]}"#;
+        let (_d, p) = write(one);
+        assert!(FramesSidecar::read(&p).is_ok());
+        let (_d, p) = write(&format!("{one}\n{one}"));
+        let e = FramesSidecar::read(&p).unwrap_err().to_string();
+        assert!(e.contains("frames.json:2"), "{e}");
     }
 }

@@ -25,6 +25,15 @@ pub struct TlsTarget {
 /// coordinate that is not a finite number, a repeated id.
 pub fn read_targets(path: &Path) -> Result<Vec<TlsTarget>, ReadError> {
     let text = std::fs::read_to_string(path).map_err(|e| open_error(path, e))?;
+    parse_targets(path, &text)
+}
+
+/// Parses the text of a target list (`path` only names it in errors).
+///
+/// # Errors
+///
+/// As [`read_targets`].
+pub fn parse_targets(path: &Path, text: &str) -> Result<Vec<TlsTarget>, ReadError> {
     let mut lines = text
         .lines()
         .enumerate()
@@ -50,6 +59,7 @@ pub fn read_targets(path: &Path) -> Result<Vec<TlsTarget>, ReadError> {
         ));
     }
     let mut out: Vec<TlsTarget> = Vec::new();
+    let mut ids = std::collections::HashSet::new();
     for (k, line) in lines {
         let f: Vec<&str> = line.split(',').map(str::trim).collect();
         if f.len() != 4 {
@@ -80,7 +90,7 @@ pub fn read_targets(path: &Path) -> Result<Vec<TlsTarget>, ReadError> {
                     )
                 })?;
         }
-        if f[0].is_empty() || out.iter().any(|t| t.id == f[0]) {
+        if f[0].is_empty() || !ids.insert(f[0]) {
             return Err(ReadError::at_line(
                 path,
                 k + 1,

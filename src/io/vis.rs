@@ -8,7 +8,7 @@
 use std::path::Path;
 
 use super::atomic::write_bytes_atomic;
-use super::error::{ReadError, ReadErrorKind, WriteError};
+use super::error::{ReadError, ReadErrorKind, WriteError, open_error};
 
 /// Reads a visibility file. `expected_points` is the fused cloud's point count, checked.
 ///
@@ -16,7 +16,16 @@ use super::error::{ReadError, ReadErrorKind, WriteError};
 ///
 /// [`ReadError`] naming the byte of a truncated or inconsistent record.
 pub fn read(path: &Path, expected_points: usize) -> Result<Vec<Vec<u32>>, ReadError> {
-    let data = std::fs::read(path).map_err(|e| ReadError::new(path, ReadErrorKind::Io(e)))?;
+    let data = std::fs::read(path).map_err(|e| open_error(path, e))?;
+    parse(path, &data, expected_points)
+}
+
+/// Parses a visibility file held in memory (`path` only names it in errors).
+///
+/// # Errors
+///
+/// As [`read`].
+pub fn parse(path: &Path, data: &[u8], expected_points: usize) -> Result<Vec<Vec<u32>>, ReadError> {
     let truncated = |at: usize, what: &str| {
         ReadError::at_byte(path, at as u64, ReadErrorKind::Truncated(what.to_string()))
     };

@@ -122,7 +122,22 @@ pub enum CloudError {
         /// Points needed.
         required: usize,
     },
+    /// The points spread wider than the fit's arithmetic is made for.
+    #[error(
+        "the cloud's points span {extent_m:e} m along an axis, more than the {limit_m:e} m a cloud may span (coordinates in other units than metres, or stray points)"
+    )]
+    TooLarge {
+        /// The largest span along an axis (may be infinite).
+        extent_m: f64,
+        /// [`MAX_EXTENT_M`].
+        limit_m: f64,
+    },
 }
+
+/// The widest a cloud may span along an axis (m): 10⁹ m, far beyond any site, yet small enough
+/// that every squared distance, sum and product of the fit stays finite (coordinates near 10³⁰⁸
+/// overflowed and made the fit panic).
+pub const MAX_EXTENT_M: f64 = 1e9;
 
 /// The mean of the finite points, accumulated relative to the first one (exact for clouds far
 /// from the origin).
@@ -342,6 +357,14 @@ impl Cloud {
             return Err(CloudError::TooFewPoints {
                 found,
                 required: NORMAL_NEIGHBOURS,
+            });
+        }
+        let (lo, hi) = bounds(input.iter().filter(is_finite).copied());
+        let extent_m = (hi - lo).max();
+        if extent_m.is_nan() || extent_m > MAX_EXTENT_M {
+            return Err(CloudError::TooLarge {
+                extent_m,
+                limit_m: MAX_EXTENT_M,
             });
         }
         let origin = local_origin(input.iter().filter(is_finite));
@@ -599,6 +622,28 @@ fn local_geometry(nb: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Issue 21: 100 finite points with x in [0, 1e308), y in (−1e308, 0], z = 1e308 made the
+    /// cylinder fit panic ("cannot sample empty range"): the local origin overflowed.
+    #[test]
+    fn issue_21_coordinates_near_1e308_are_refused() {
+        let points: Vec<Vector3<f64>> = (0..100)
+            .map(|k| {
+                let t = f64::from(k) / 100.0;
+                Vector3::new(t * 1e308, -t * 1e308, 1e308)
+            })
+            .collect();
+        match Cloud::new(&points) {
+            Err(CloudError::TooLarge { extent_m, limit_m }) => {
+                assert!(extent_m > 9.8e307, "{extent_m}");
+                assert_eq!(limit_m, 1e9);
+            }
+            other => panic!("{:?}", other.map(|c| c.len())),
+        }
+        // At the limit itself the cloud is prepared.
+        let near: Vec<Vector3<f64>> = points.iter().map(|p| p / 1e308 * 1e9).collect();
+        assert_eq!(Cloud::new(&near).map(|c| c.len()), Ok(100));
+    }
 
     #[test]
     fn plane_normals_and_a_far_origin() {

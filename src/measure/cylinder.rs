@@ -167,6 +167,18 @@ impl CylinderConfig {
         if self.hypotheses == 0 || self.score_sample < 10 {
             return bad("hypotheses", self.hypotheses.to_string());
         }
+        if let Some((hint, angle)) = self.axis_hint
+            && !((hint.norm() - 1.0).abs() < 1e-9
+                && (0.0..=std::f64::consts::FRAC_PI_2).contains(&angle))
+        {
+            return bad(
+                "axis_hint",
+                format!(
+                    "({}, {}, {}) within {angle} rad: expected a unit direction and an angle in [0, π/2]",
+                    hint.x, hint.y, hint.z
+                ),
+            );
+        }
         Ok(())
     }
 }
@@ -523,7 +535,13 @@ fn fit_among(
                     .query(&entries[a])
                     .nearest_n::<SquaredEuclidean<f64>>(local_k)
                     .execute();
-                nb[rng.random_range(0..nb.len())].item as usize
+                // Never empty for finite points (the cloud's extent is bounded); guarded all
+                // the same, since an empty range would panic.
+                if nb.is_empty() {
+                    rng.random_range(0..sample.len())
+                } else {
+                    nb[rng.random_range(0..nb.len())].item as usize
+                }
             };
             (sample[a], sample[b])
         })

@@ -215,24 +215,6 @@ pub fn site_intrinsics(
     Ok((model_cam.intrinsics, true))
 }
 
-/// Checks that every frame has the model's size.
-fn check_frame_sizes(frames: &Path, names: &[String], size: (u32, u32)) -> Result<(), SiteError> {
-    for name in names {
-        let path = frames.join(name);
-        let (w, h) = image::image_dimensions(&path)
-            .map_err(|e| SiteError::Input(format!("frame {} of the model: {e}", path.display())))?;
-        if (w, h) != size {
-            return Err(SiteError::Input(format!(
-                "frame {} is {w}x{h} but the model's camera is {}x{}: the frames and the model do not belong together",
-                path.display(),
-                size.0,
-                size.1
-            )));
-        }
-    }
-    Ok(())
-}
-
 /// The targets' scale, with what was used.
 #[derive(Clone, Debug)]
 pub struct SiteScale {
@@ -360,14 +342,13 @@ pub fn scale_from_targets(
         poses.sigma_after_px
     ));
     let names: Vec<String> = poses.a1.frames.iter().map(|f| f.name.clone()).collect();
-    check_frame_sizes(&frames, &names, size)?;
     let config = DetectConfig {
         min_semi_minor_px: request.min_semi_minor_px,
         ..DetectConfig::default()
     };
     let paths: Vec<PathBuf> = names.iter().map(|n| frames.join(n)).collect();
     let total = paths.len();
-    let detected = detect_frame_files(&paths, &config, &|| progress(total))?;
+    let detected = detect_frame_files(&paths, size, &config, &|| progress(total))?;
     let cameras = poses.cameras();
     let targets = match_site_targets(
         &cameras,

@@ -8,11 +8,12 @@ use std::path::Path;
 use nalgebra::Vector2;
 
 use super::{
-    CameraId, ColmapCamera, ColmapModel, Image, ImageId, Point2D, Point3D, Point3dId,
-    Reconstruction, TrackElement,
+    CameraId, ColmapCamera, ColmapModel, Image, ImageId, ImagesRead, Locations, ModelFormat,
+    Point2D, Point3D, Point3dId, Reconstruction, TrackElement, camera_problem,
 };
+use crate::io::Location;
 use crate::io::atomic::write_atomic;
-use crate::io::error::{ReadError, ReadErrorKind, WriteError, open_error};
+use crate::io::error::{ReadError, ReadErrorKind, WriteError};
 
 /// COLMAP's `kInvalidPoint3DId` (u64::MAX) marks an untriangulated 2D point.
 const INVALID_POINT3D: u64 = u64::MAX;
@@ -92,25 +93,33 @@ impl<'a> Reader<'a> {
     }
 }
 
-fn load(path: &Path) -> Result<Vec<u8>, ReadError> {
-    std::fs::read(path).map_err(|e| open_error(path, e))
+/// The format this module reads.
+const FORMAT: ModelFormat = ModelFormat::Binary;
+
+/// Parses the three files' bytes (cameras, images, points); `dir` names them in errors.
+pub(super) fn parse(
+    dir: &Path,
+    [cameras, images, points]: [&[u8]; 3],
+) -> Result<(Reconstruction, Locations), ReadError> {
+    let [c, i, p] = FORMAT.files().map(|f| dir.join(f));
+    let cameras = read_cameras(&c, cameras)?;
+    let images = read_images(&i, images)?;
+    let (points3d, points) = read_points(&p, points)?;
+    Ok((
+        Reconstruction {
+            cameras,
+            images: images.images,
+            points3d,
+        },
+        Locations {
+            images: images.locations,
+            points,
+        },
+    ))
 }
 
-pub(super) fn read(dir: &Path) -> Result<Reconstruction, ReadError> {
-    Ok(Reconstruction {
-        cameras: read_cameras(&dir.join("cameras.bin"))?,
-        images: read_images(&dir.join("images.bin"))?.0,
-        points3d: read_points(&dir.join("points3D.bin"))?,
-    })
-}
-
-fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadError> {
-    let data = load(path)?;
-    let mut r = Reader {
-        path,
-        data: &data,
-        pos: 0,
-    };
+fn read_cameras(path: &Path, data: &[u8]) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadError> {
+    let mut r = Reader { path, data, pos: 0 };
     let n = r.count("number of cameras", 24)?;
     let mut cameras = BTreeMap::new();
     for _ in 0..n {
@@ -124,18 +133,31 @@ fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadErr
         let params = (0..model.num_params())
             .map(|_| r.f64("camera parameter"))
             .collect::<Result<_, _>>()?;
-        if cameras
-            .insert(
-                id,
-                ColmapCamera {
-                    model,
-                    width,
-                    height,
-                    params,
+        let camera = ColmapCamera {
+            model,
+            width,
+            height,
+            params,
+        };
+        if let Some((field, value, expected)) = camera_problem(&camera) {
+            // The width follows the id and the model id; the parameters the height.
+            let field_at = match field {
+                "WIDTH" => at + 8,
+                "HEIGHT" => at + 16,
+                _ if field.starts_with("PARAMS[1]") => at + 32,
+                _ => at + 24,
+            };
+            return Err(ReadError::at_byte(
+                path,
+                field_at as u64,
+                ReadErrorKind::Field {
+                    field,
+                    value,
+                    expected,
                 },
-            )
-            .is_some()
-        {
+            ));
+        }
+        if cameras.insert(id, camera).is_some() {
             return Err(r.invalid_at(at, format!("camera {} defined twice", id.0)));
         }
     }
@@ -143,16 +165,10 @@ fn read_cameras(path: &Path) -> Result<BTreeMap<CameraId, ColmapCamera>, ReadErr
     Ok(cameras)
 }
 
-pub(super) fn read_images(
-    path: &Path,
-) -> Result<(BTreeMap<ImageId, Image>, Vec<ImageId>), ReadError> {
+pub(super) fn read_images(path: &Path, data: &[u8]) -> Result<ImagesRead, ReadError> {
     let mut order = Vec::new();
-    let data = load(path)?;
-    let mut r = Reader {
-        path,
-        data: &data,
-        pos: 0,
-    };
+    let mut locations = BTreeMap::new();
+    let mut r = Reader { path, data, pos: 0 };
     let n = r.count("number of images", 73)?;
     let mut images = BTreeMap::new();
     for _ in 0..n {
@@ -182,6 +198,7 @@ pub(super) fn read_images(
         if qvec.iter().map(|q| q * q).sum::<f64>() < 1e-12 {
             return Err(r.invalid_at(at, format!("image {} has a zero quaternion", id.0)));
         }
+        let points_at = r.pos;
         let np = r.count("number of 2D points", 24)?;
         let mut points2d = Vec::with_capacity(np);
         for _ in 0..np {
@@ -195,6 +212,10 @@ pub(super) fn read_images(
             });
         }
         order.push(id);
+        locations.insert(
+            id,
+            (Location::Byte(at as u64), Location::Byte(points_at as u64)),
+        );
         if images
             .insert(
                 id,
@@ -212,18 +233,21 @@ pub(super) fn read_images(
         }
     }
     trailing(&r)?;
-    Ok((images, order))
+    Ok(ImagesRead {
+        images,
+        order,
+        locations,
+    })
 }
 
-fn read_points(path: &Path) -> Result<BTreeMap<Point3dId, Point3D>, ReadError> {
-    let data = load(path)?;
-    let mut r = Reader {
-        path,
-        data: &data,
-        pos: 0,
-    };
+/// Points by id, and the byte of each record.
+type PointsRead = (BTreeMap<Point3dId, Point3D>, BTreeMap<Point3dId, Location>);
+
+fn read_points(path: &Path, data: &[u8]) -> Result<PointsRead, ReadError> {
+    let mut r = Reader { path, data, pos: 0 };
     let n = r.count("number of points", 43)?;
     let mut points = BTreeMap::new();
+    let mut records = BTreeMap::new();
     for _ in 0..n {
         let at = r.pos;
         let id = Point3dId(r.u64("point id")?);
@@ -258,9 +282,10 @@ fn read_points(path: &Path) -> Result<BTreeMap<Point3dId, Point3D>, ReadError> {
         {
             return Err(r.invalid_at(at, format!("point {} defined twice", id.0)));
         }
+        records.insert(id, Location::Byte(at as u64));
     }
     trailing(&r)?;
-    Ok(points)
+    Ok((points, records))
 }
 
 fn trailing(r: &Reader<'_>) -> Result<(), ReadError> {
@@ -367,6 +392,31 @@ mod tests {
         let e = Reconstruction::read(dir.path()).unwrap_err().to_string();
         assert!(
             e.contains("cameras.bin (byte 12)") && e.contains("model id 42"),
+            "{e}"
+        );
+    }
+
+    /// Issue 21 (binary side): a camera 4.8e12 px wide, and a 2D point observing a 3D point
+    /// that does not exist, name the byte and the field.
+    #[test]
+    fn issue_21_camera_width_and_missing_point3d_name_the_byte() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut m = crate::io::colmap::tests::sample();
+        m.cameras.get_mut(&CameraId(1)).unwrap().width = 4_800_000_000_000;
+        m.write(dir.path(), ModelFormat::Binary).unwrap();
+        let e = Reconstruction::read(dir.path()).unwrap_err().to_string();
+        // Record 1: count (8 bytes), id and model id (8): the width at byte 16.
+        assert!(
+            e.ends_with("cameras.bin (byte 16): field WIDTH is \"4800000000000\", expected a width from 1 to 65535 px"),
+            "{e}"
+        );
+        let mut m = crate::io::colmap::tests::sample();
+        m.images.get_mut(&ImageId(10)).unwrap().points2d[0].point3d_id = Some(Point3dId(77));
+        m.write(dir.path(), ModelFormat::Binary).unwrap();
+        let e = Reconstruction::read(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("images.bin (byte ")
+                && e.contains("field POINT3D_ID of 2D point 0 of image 10 is 77"),
             "{e}"
         );
     }

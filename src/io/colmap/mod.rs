@@ -19,7 +19,7 @@ pub use crate::camera::convert::{ColmapCamera, ColmapModel};
 use crate::geometry::Rigid3;
 use crate::geometry::pose::{colmap_from_rigid, rigid_from_colmap};
 
-use super::error::{ReadError, ReadErrorKind, WriteError};
+use super::error::{Location, ReadError, ReadErrorKind, WriteError};
 
 /// A COLMAP camera id.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -101,6 +101,16 @@ pub struct Reconstruction {
     pub points3d: BTreeMap<Point3dId, Point3D>,
 }
 
+/// Where the records of a model were read, for the errors found once every file is read.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Locations {
+    /// Per image: where its record starts, and where its 2D points are (text: the POINTS2D
+    /// line; binary: the byte of the point count).
+    pub images: BTreeMap<ImageId, (Location, Location)>,
+    /// Per 3D point: where its record starts.
+    pub points: BTreeMap<Point3dId, Location>,
+}
+
 /// The format of a sparse model on disk.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ModelFormat {
@@ -108,6 +118,22 @@ pub enum ModelFormat {
     Text,
     /// `cameras.bin`, `images.bin`, `points3D.bin`.
     Binary,
+}
+
+impl ModelFormat {
+    /// The model's three files in this format: cameras, images, points.
+    #[must_use]
+    pub fn files(self) -> [&'static str; 3] {
+        match self {
+            ModelFormat::Text => ["cameras.txt", "images.txt", "points3D.txt"],
+            ModelFormat::Binary => ["cameras.bin", "images.bin", "points3D.bin"],
+        }
+    }
+}
+
+/// The bytes of a model file.
+fn load(path: &Path) -> Result<Vec<u8>, ReadError> {
+    std::fs::read(path).map_err(|e| super::error::open_error(path, e))
 }
 
 impl Reconstruction {
@@ -165,9 +191,11 @@ impl Reconstruction {
     /// As [`Reconstruction::read`].
     pub fn image_file_order(dir: &Path) -> Result<Vec<ImageId>, ReadError> {
         if dir.join("cameras.bin").is_file() {
-            Ok(binary::read_images(&dir.join("images.bin"))?.1)
+            let path = dir.join(ModelFormat::Binary.files()[1]);
+            Ok(binary::read_images(&path, &load(&path)?)?.order)
         } else {
-            Ok(text::read_images(&dir.join("images.txt"))?.1)
+            let path = dir.join(ModelFormat::Text.files()[1]);
+            Ok(text::read_images(&path, &load(&path)?)?.order)
         }
     }
 
@@ -177,15 +205,23 @@ impl Reconstruction {
     ///
     /// As [`Reconstruction::read`].
     pub fn read_format(dir: &Path, format: ModelFormat) -> Result<Self, ReadError> {
-        let model = match format {
-            ModelFormat::Text => text::read(dir)?,
-            ModelFormat::Binary => binary::read(dir)?,
+        let [cameras, images, points] = format.files().map(|f| load(&dir.join(f)));
+        Self::parse(dir, format, [&cameras?, &images?, &points?])
+    }
+
+    /// Parses a model held in memory: the bytes of its three files (`cameras`, `images`,
+    /// `points3D`, in that order) in `format`; `dir` names the files in errors. The same checks
+    /// as [`Reconstruction::read`].
+    ///
+    /// # Errors
+    ///
+    /// As [`Reconstruction::read`].
+    pub fn parse(dir: &Path, format: ModelFormat, files: [&[u8]; 3]) -> Result<Self, ReadError> {
+        let (model, locations) = match format {
+            ModelFormat::Text => text::parse(dir, files)?,
+            ModelFormat::Binary => binary::parse(dir, files)?,
         };
-        let ext = match format {
-            ModelFormat::Text => "txt",
-            ModelFormat::Binary => "bin",
-        };
-        model.check_references(dir, ext)?;
+        model.check_references(dir, format, &locations)?;
         Ok(model)
     }
 
@@ -202,42 +238,77 @@ impl Reconstruction {
         }
     }
 
-    /// Checks that every id a model refers to exists (images → cameras, points2D ↔ points3D).
-    fn check_references(&self, dir: &Path, ext: &str) -> Result<(), ReadError> {
-        let images_file = dir.join(format!("images.{ext}"));
-        let points_file = dir.join(format!("points3D.{ext}"));
+    /// Checks that every id a model refers to exists (images → cameras, points2D ↔ points3D),
+    /// naming the line (text) or byte (binary) where the reference was read.
+    fn check_references(
+        &self,
+        dir: &Path,
+        format: ModelFormat,
+        locations: &Locations,
+    ) -> Result<(), ReadError> {
+        let [cameras, images, points] = format.files();
+        let ext = &cameras[cameras.len() - 3..];
+        let images_file = dir.join(images);
+        let points_file = dir.join(points);
+        let at = |path: &Path, location: Option<&Location>, message: String| ReadError {
+            path: path.to_path_buf(),
+            location: location.copied(),
+            kind: ReadErrorKind::Invalid(message),
+        };
         for (id, image) in &self.images {
+            let (record, points) = locations
+                .images
+                .get(id)
+                .map_or((None, None), |(r, p)| (Some(r), Some(p)));
             if !self.cameras.contains_key(&image.camera_id) {
-                return Err(ReadError::new(
+                return Err(at(
                     &images_file,
-                    ReadErrorKind::Invalid(format!(
+                    record,
+                    format!(
                         "image {} refers to camera {}, which cameras.{ext} does not define",
                         id.0, image.camera_id.0
-                    )),
+                    ),
+                ));
+            }
+            if let Some((k, p)) = image.points2d.iter().enumerate().find_map(|(k, p)| {
+                p.point3d_id
+                    .filter(|pid| !self.points3d.contains_key(pid))
+                    .map(|pid| (k, pid))
+            }) {
+                return Err(at(
+                    &images_file,
+                    points,
+                    format!(
+                        "field POINT3D_ID of 2D point {k} of image {} is {}, which points3D.{ext} does not define",
+                        id.0, p.0
+                    ),
                 ));
             }
         }
         for (id, point) in &self.points3d {
+            let record = locations.points.get(id);
             for el in &point.track {
                 let Some(image) = self.images.get(&el.image_id) else {
-                    return Err(ReadError::new(
+                    return Err(at(
                         &points_file,
-                        ReadErrorKind::Invalid(format!(
+                        record,
+                        format!(
                             "point {} is observed in image {}, which images.{ext} does not define",
                             id.0, el.image_id.0
-                        )),
+                        ),
                     ));
                 };
                 if el.point2d_idx as usize >= image.points2d.len() {
-                    return Err(ReadError::new(
+                    return Err(at(
                         &points_file,
-                        ReadErrorKind::Invalid(format!(
+                        record,
+                        format!(
                             "point {} refers to 2D point {} of image {}, which has {}",
                             id.0,
                             el.point2d_idx,
                             el.image_id.0,
                             image.points2d.len()
-                        )),
+                        ),
                     ));
                 }
             }
@@ -253,6 +324,61 @@ impl Reconstruction {
             .find(|(_, im)| im.name == name)
             .map(|(id, im)| (*id, im))
     }
+}
+
+/// The images file as read: images by id, ids in file order, and where each was read.
+pub(crate) struct ImagesRead {
+    /// Images by id.
+    pub images: BTreeMap<ImageId, Image>,
+    /// Ids in the order of the file.
+    pub order: Vec<ImageId>,
+    /// Per image: record and 2D points ([`Locations::images`]).
+    pub locations: BTreeMap<ImageId, (Location, Location)>,
+}
+
+/// What is wrong with a camera's size or focal length, if anything: `(field, value,
+/// expected)`. A camera is at most [`crate::io::frames::MAX_FRAME_PIXELS`] pixels, each side
+/// at most [`crate::io::frames::MAX_FRAME_SIDE_PX`], with positive finite focal lengths.
+pub(crate) fn camera_problem(cam: &ColmapCamera) -> Option<(&'static str, String, &'static str)> {
+    use crate::io::frames::{MAX_FRAME_PIXELS, MAX_FRAME_SIDE_PX};
+    let side_ok = |v: u64| (1..=u64::from(MAX_FRAME_SIDE_PX)).contains(&v);
+    if !side_ok(cam.width) {
+        return Some(("WIDTH", cam.width.to_string(), "a width from 1 to 65535 px"));
+    }
+    if !side_ok(cam.height) {
+        return Some((
+            "HEIGHT",
+            cam.height.to_string(),
+            "a height from 1 to 65535 px",
+        ));
+    }
+    if cam.width * cam.height > MAX_FRAME_PIXELS {
+        return Some((
+            "WIDTH",
+            format!(
+                "{} (x {} = {} px)",
+                cam.width,
+                cam.height,
+                cam.width * cam.height
+            ),
+            "a frame of at most 100000000 pixels",
+        ));
+    }
+    let focal: &[&'static str] = match cam.model {
+        ColmapModel::SimplePinhole
+        | ColmapModel::SimpleRadial
+        | ColmapModel::Radial
+        | ColmapModel::SimpleRadialFisheye
+        | ColmapModel::RadialFisheye => &["PARAMS[0] (f)"],
+        _ => &["PARAMS[0] (fx)", "PARAMS[1] (fy)"],
+    };
+    for (k, field) in focal.iter().enumerate() {
+        let f = cam.params.get(k).copied().unwrap_or(f64::NAN);
+        if !(f.is_finite() && f > 0.0) {
+            return Some((field, f.to_string(), "a positive focal length (px)"));
+        }
+    }
+    None
 }
 
 /// Writes a `cameras.txt` holding just these cameras (atomically).

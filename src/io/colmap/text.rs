@@ -1,17 +1,17 @@
 //! COLMAP's text model format (`cameras.txt`, `images.txt`, `points3D.txt`).
 
-use std::fs;
 use std::io::Write;
 use std::path::Path;
 
 use nalgebra::Vector2;
 
 use super::{
-    CameraId, ColmapCamera, ColmapModel, Image, ImageId, Point2D, Point3D, Point3dId,
-    Reconstruction, TrackElement,
+    CameraId, ColmapCamera, ColmapModel, Image, ImageId, ImagesRead, Locations, ModelFormat,
+    Point2D, Point3D, Point3dId, Reconstruction, TrackElement, camera_problem,
 };
+use crate::io::Location;
 use crate::io::atomic::write_atomic;
-use crate::io::error::{ReadError, ReadErrorKind, WriteError, open_error};
+use crate::io::error::{ReadError, ReadErrorKind, WriteError};
 
 /// A text file being parsed: path and the current 1-based line, for errors.
 struct Cursor<'a> {
@@ -58,12 +58,17 @@ impl Cursor<'_> {
     }
 }
 
-fn read_text(path: &Path) -> Result<String, ReadError> {
-    let bytes = fs::read(path).map_err(|e| open_error(path, e))?;
-    String::from_utf8(bytes).map_err(|_| {
-        ReadError::new(
+/// The text of a file's bytes (`path` names it in errors).
+fn text_of<'a>(path: &Path, bytes: &'a [u8]) -> Result<&'a str, ReadError> {
+    std::str::from_utf8(bytes).map_err(|e| {
+        let line = 1 + bytes[..e.valid_up_to()]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count();
+        ReadError::at_line(
             path,
-            ReadErrorKind::Invalid("file is not UTF-8 text".into()),
+            line,
+            ReadErrorKind::Invalid("the file is not UTF-8 text".into()),
         )
     })
 }
@@ -74,18 +79,36 @@ fn is_data(line: &str) -> bool {
     !t.is_empty() && !t.starts_with('#')
 }
 
-pub(super) fn read(dir: &Path) -> Result<Reconstruction, ReadError> {
-    Ok(Reconstruction {
-        cameras: read_cameras(&dir.join("cameras.txt"))?,
-        images: read_images(&dir.join("images.txt"))?.0,
-        points3d: read_points(&dir.join("points3D.txt"))?,
-    })
+/// The format this module reads.
+const FORMAT: ModelFormat = ModelFormat::Text;
+
+/// Parses the three files' bytes (cameras, images, points); `dir` names them in errors.
+pub(super) fn parse(
+    dir: &Path,
+    [cameras, images, points]: [&[u8]; 3],
+) -> Result<(Reconstruction, Locations), ReadError> {
+    let [c, i, p] = FORMAT.files().map(|f| dir.join(f));
+    let cameras = read_cameras(&c, cameras)?;
+    let images = read_images(&i, images)?;
+    let (points3d, points) = read_points(&p, points)?;
+    Ok((
+        Reconstruction {
+            cameras,
+            images: images.images,
+            points3d,
+        },
+        Locations {
+            images: images.locations,
+            points,
+        },
+    ))
 }
 
 fn read_cameras(
     path: &Path,
+    bytes: &[u8],
 ) -> Result<std::collections::BTreeMap<CameraId, ColmapCamera>, ReadError> {
-    let text = read_text(path)?;
+    let text = text_of(path, bytes)?;
     let mut cameras = std::collections::BTreeMap::new();
     for (k, line) in text.lines().enumerate() {
         let cur = Cursor { path, line: k + 1 };
@@ -113,18 +136,20 @@ fn read_cameras(
                 found: params.len(),
             }));
         }
-        if cameras
-            .insert(
-                id,
-                ColmapCamera {
-                    model,
-                    width,
-                    height,
-                    params,
-                },
-            )
-            .is_some()
-        {
+        let camera = ColmapCamera {
+            model,
+            width,
+            height,
+            params,
+        };
+        if let Some((field, value, expected)) = camera_problem(&camera) {
+            return Err(cur.err(ReadErrorKind::Field {
+                field,
+                value,
+                expected,
+            }));
+        }
+        if cameras.insert(id, camera).is_some() {
             return Err(cur.err(ReadErrorKind::Invalid(format!(
                 "camera {} defined twice",
                 id.0
@@ -134,11 +159,10 @@ fn read_cameras(
     Ok(cameras)
 }
 
-pub(super) fn read_images(
-    path: &Path,
-) -> Result<(std::collections::BTreeMap<ImageId, Image>, Vec<ImageId>), ReadError> {
+pub(super) fn read_images(path: &Path, bytes: &[u8]) -> Result<ImagesRead, ReadError> {
     let mut order = Vec::new();
-    let text = read_text(path)?;
+    let mut locations = std::collections::BTreeMap::new();
+    let text = text_of(path, bytes)?;
     let mut images = std::collections::BTreeMap::new();
     let mut lines = text.lines().enumerate();
     while let Some((k, line)) = lines.next() {
@@ -169,8 +193,14 @@ pub(super) fn read_images(
                 id.0
             ))));
         }
-        // The next line holds the 2D points, and may be empty.
-        let (k2, points_line) = lines.next().unwrap_or((k + 1, ""));
+        // The next line holds the 2D points, and may be empty, but it must be there: COLMAP
+        // writes it for every image.
+        let Some((k2, points_line)) = lines.next() else {
+            return Err(cur.err(ReadErrorKind::Truncated(format!(
+                "the file ends before the POINTS2D line of image {} (each image takes two lines; the second may be empty)",
+                id.0
+            ))));
+        };
         let cur = Cursor { path, line: k2 + 1 };
         let fields: Vec<&str> = points_line.split_whitespace().collect();
         if fields.len() % 3 != 0 {
@@ -208,6 +238,7 @@ pub(super) fn read_images(
             points2d,
         };
         order.push(id);
+        locations.insert(id, (Location::Line(k + 1), Location::Line(k2 + 1)));
         if images.insert(id, image).is_some() {
             return Err(
                 Cursor { path, line: k + 1 }.err(ReadErrorKind::Invalid(format!(
@@ -217,12 +248,23 @@ pub(super) fn read_images(
             );
         }
     }
-    Ok((images, order))
+    Ok(ImagesRead {
+        images,
+        order,
+        locations,
+    })
 }
 
-fn read_points(path: &Path) -> Result<std::collections::BTreeMap<Point3dId, Point3D>, ReadError> {
-    let text = read_text(path)?;
+/// Points by id, and the line of each.
+type PointsRead = (
+    std::collections::BTreeMap<Point3dId, Point3D>,
+    std::collections::BTreeMap<Point3dId, Location>,
+);
+
+fn read_points(path: &Path, bytes: &[u8]) -> Result<PointsRead, ReadError> {
+    let text = text_of(path, bytes)?;
     let mut points = std::collections::BTreeMap::new();
+    let mut lines_of = std::collections::BTreeMap::new();
     for (k, line) in text.lines().enumerate() {
         let cur = Cursor { path, line: k + 1 };
         if !is_data(line) {
@@ -278,8 +320,9 @@ fn read_points(path: &Path) -> Result<std::collections::BTreeMap<Point3dId, Poin
                 id.0
             ))));
         }
+        lines_of.insert(id, Location::Line(k + 1));
     }
-    Ok(points)
+    Ok((points, lines_of))
 }
 
 /// Writes `cameras.txt` alone (e.g. beside undistorted frames).
@@ -394,7 +437,7 @@ mod tests {
                 .iter()
                 .find(|(n, _)| *n == name)
                 .map_or(content, |(_, c)| *c);
-            fs::write(dir.path().join(name), content).unwrap();
+            std::fs::write(dir.path().join(name), content).unwrap();
         }
         dir
     }
@@ -447,5 +490,74 @@ mod tests {
         assert!(e.contains("points3D.txt:1") && e.contains("field R"), "{e}");
         let e = error_of(&[("points3D.txt", "5 1 nan 3 3 2 3 0.5\n")]);
         assert!(e.contains("points3D.txt:1") && e.contains("finite"), "{e}");
+    }
+
+    /// Issue 21: images.txt naming a POINT3D_ID that points3D.txt does not define was
+    /// accepted.
+    #[test]
+    fn issue_21_a_point3d_id_that_does_not_exist_is_an_error() {
+        let e = error_of(&[
+            (
+                "images.txt",
+                "# c\n1 1 0 0 0 0 0 0 1 a.png\n1.5 2.5 -1 3 4 99\n",
+            ),
+            ("points3D.txt", ""),
+        ]);
+        assert_eq!(
+            e.rsplit('/').next().unwrap(),
+            "images.txt:3: field POINT3D_ID of 2D point 1 of image 1 is 99, which points3D.txt does not define"
+        );
+    }
+
+    /// Issue 21: a missing last POINTS2D line showed up later as a confusing points3D.txt
+    /// error.
+    #[test]
+    fn issue_21_a_missing_points2d_line_names_the_image() {
+        for images in ["1 1 0 0 0 0 0 0 1 a.png\n", "1 1 0 0 0 0 0 0 1 a.png"] {
+            let e = error_of(&[
+                ("images.txt", images),
+                ("points3D.txt", "7 1 2 3 1 2 3 0.5 1 0\n"),
+            ]);
+            assert!(
+                e.contains("images.txt:1: file ends early: the file ends before the POINTS2D line of image 1"),
+                "{e}"
+            );
+        }
+    }
+
+    /// Issue 21: a camera 0 or 4.8e12 px wide was blamed on the focal length, without file,
+    /// line or field.
+    #[test]
+    fn issue_21_camera_size_and_focal_length_name_file_line_and_field() {
+        let cases = [
+            (
+                "1 PINHOLE 0 10 5 5 5 5\n",
+                "cameras.txt:1: field WIDTH is \"0\"",
+            ),
+            (
+                "# x\n1 PINHOLE 4800000000000 10 5 5 5 5\n",
+                "cameras.txt:2: field WIDTH is \"4800000000000\"",
+            ),
+            (
+                "1 PINHOLE 10 70000 5 5 5 5\n",
+                "cameras.txt:1: field HEIGHT is \"70000\"",
+            ),
+            (
+                "1 PINHOLE 20000 20000 5 5 5 5\n",
+                "cameras.txt:1: field WIDTH is \"20000 (x 20000 = 400000000 px)\"",
+            ),
+            (
+                "1 SIMPLE_RADIAL 10 10 0 5 5 0.1\n",
+                "cameras.txt:1: field PARAMS[0] (f) is \"0\"",
+            ),
+            (
+                "1 OPENCV 10 10 5 -5 5 5 0 0 0 0\n",
+                "cameras.txt:1: field PARAMS[1] (fy) is \"-5\"",
+            ),
+        ];
+        for (cameras, want) in cases {
+            let e = error_of(&[("cameras.txt", cameras)]);
+            assert!(e.contains(want), "{e}\nwanted {want}");
+        }
     }
 }
