@@ -447,7 +447,17 @@ fn validate(
     d: &mut DetectDiagnostics,
 ) -> Option<(f64, DetectedEllipse)> {
     let (w, h) = (img.width, img.height);
-    let Some(r) = refine::refine(img, &cand.ellipse, cand.polarity, min_slope) else {
+    let polarity = if cand.polarity > 0.0 {
+        DiscPolarity::Dark
+    } else {
+        DiscPolarity::Light
+    };
+    // The candidate's polarity is known before any refinement.
+    if config.polarity.is_some_and(|p| p != polarity) {
+        d.rejected_appearance += 1;
+        return None;
+    }
+    let Some(mut r) = refine::refine(img, &cand.ellipse, cand.polarity, min_slope) else {
         d.rejected_support += 1;
         return None;
     };
@@ -474,15 +484,6 @@ fn validate(
         d.rejected_fit += 1;
         return None;
     }
-    let polarity = if cand.polarity > 0.0 {
-        DiscPolarity::Dark
-    } else {
-        DiscPolarity::Light
-    };
-    if config.polarity.is_some_and(|p| p != polarity) {
-        d.rejected_appearance += 1;
-        return None;
-    }
     let (inner, outer, _) = refine::levels(&r.profiles);
     let width0 = refine::edge_width(&r.profiles);
     let Some(look) = step::appearance(img, &e, outer - inner, width0, sigma) else {
@@ -503,6 +504,7 @@ fn validate(
         d.rejected_appearance += 1;
         return None;
     }
+    refine::correlate_centre_std(&mut r);
     let conic = e.to_conic();
     let det = DetectedEllipse {
         cx: e.cx,

@@ -126,7 +126,8 @@ pub fn profile_edges(
 /// The outcome of refining a candidate.
 #[derive(Clone, Debug)]
 pub struct Refined {
-    /// The geometric fit.
+    /// The geometric fit; its centre σ assumes independent edge points until
+    /// [`correlate_centre_std`] replaces it.
     pub fit: EllipseFit,
     /// The last round's profiles.
     pub profiles: Profiles,
@@ -138,6 +139,7 @@ pub struct Refined {
 /// intermediate rounds move the ellipse by the direct least-squares fit of the edge points
 /// (unbiased on complete contours, and cheap) until the centre moves less than 0.01 px (at most
 /// five rounds); the last round's points get the robust geometric fit.
+/// [`correlate_centre_std`] then gives the centre σ its edge points' correlation.
 ///
 /// The first round searches ±2 px (never beyond 0.35 of the semi-minor axis: the plate edge
 /// lies 0.3 radius outside the disc; the widest window once if that finds too few edges); later
@@ -180,19 +182,24 @@ pub fn refine(img: &GrayImage, start: &Ellipse, polarity: f64, min_slope: f64) -
         }
         search = wanted;
     }
-    let mut fit = fit_ellipse_geometric(&profiles.points, Some(e))?;
-    // Neighbouring normals share pixels through the bicubic interpolation: their edge points'
-    // errors are correlated, which the independent-error σ ignores.
-    let (rho, reach) = profile_correlation(&profiles, &fit.ellipse, edge_width(&profiles));
-    if let Some(std) = centre_std_correlated(&fit.ellipse, &profiles.points, rho, reach) {
-        fit.centre_std_px = std;
-    }
+    let fit = fit_ellipse_geometric(&profiles.points, Some(e))?;
     let shape_px = shape_harmonics(&fit.ellipse, &profiles.points).unwrap_or(0.0);
     Some(Refined {
         fit,
         profiles,
         shape_px,
     })
+}
+
+/// Replaces the refined fit's centre σ (from independent edge-point errors) by the one that
+/// accounts for their correlation: neighbouring normals share pixels through the bicubic
+/// interpolation. The costliest part of a refinement, so the validation calls it only for a
+/// candidate it accepts.
+pub fn correlate_centre_std(r: &mut Refined) {
+    let (rho, reach) = profile_correlation(&r.profiles, &r.fit.ellipse, edge_width(&r.profiles));
+    if let Some(std) = centre_std_correlated(&r.fit.ellipse, &r.profiles.points, rho, reach) {
+        r.fit.centre_std_px = std;
+    }
 }
 
 /// Ramanujan's approximation of an ellipse's perimeter (px).
