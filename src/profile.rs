@@ -130,9 +130,26 @@ pub struct Profile {
     /// Image observations used.
     #[serde(default)]
     pub observations: usize,
+    /// The rolling shutter: the device's readout time, when the calibration modelled it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rolling_shutter: Option<ReadoutTime>,
     /// Where the profile came from (tool, version, command, data, date, notes).
     #[serde(default)]
     pub provenance: BTreeMap<String, serde_json::Value>,
+}
+
+/// A rolling-shutter device's readout time: from the exposure of the top row to that of the
+/// bottom row of a frame of [`Profile::image`]'s size.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ReadoutTime {
+    /// Readout time (s).
+    pub readout_s: f64,
+    /// Its standard deviation (s); 0 when it was given, not estimated.
+    pub readout_std_s: f64,
+    /// Whether the calibration estimated it (video frames with their neighbours), or held
+    /// it at a given value.
+    pub estimated: bool,
 }
 
 /// Why a profile could not be found, read or accepted.
@@ -198,6 +215,7 @@ impl Profile {
             images: 0,
             targets: 0,
             observations: 0,
+            rolling_shutter: None,
             provenance,
         }
     }
@@ -210,6 +228,27 @@ impl Profile {
             height: self.image.height,
             intrinsics: self.intrinsics,
         }
+    }
+
+    /// The covariance of the ten intrinsics (in [`Term::ALL`] order) from the σ and the
+    /// correlation of the calibrated terms; zero for the fixed ones.
+    #[must_use]
+    pub fn covariance(&self) -> nalgebra::DMatrix<f64> {
+        let mut cov = nalgebra::DMatrix::zeros(10, 10);
+        let names = &self.correlation.names;
+        for (i, a) in names.iter().enumerate() {
+            for (j, b) in names.iter().enumerate() {
+                let r = self
+                    .correlation
+                    .matrix
+                    .get(i)
+                    .and_then(|row| row.get(j))
+                    .copied()
+                    .unwrap_or(0.0);
+                cov[(a.index(), b.index())] = r * self.std_dev.get(*a) * self.std_dev.get(*b);
+            }
+        }
+        cov
     }
 
     /// Parses and validates a profile from JSON text; `path` is used in errors.
@@ -308,6 +347,20 @@ impl Profile {
         }
         if self.intrinsics.c + self.intrinsics.b1 <= 0.0 {
             return Err(invalid("intrinsics.b1", "makes c + b1 non-positive".into()));
+        }
+        if let Some(r) = &self.rolling_shutter {
+            if !(r.readout_s.is_finite() && r.readout_s >= 0.0 && r.readout_s < 1.0) {
+                return Err(invalid(
+                    "rolling_shutter.readout_s",
+                    format!("is {}, expected a time in [0, 1) s", r.readout_s),
+                ));
+            }
+            if !(r.readout_std_s.is_finite() && r.readout_std_s >= 0.0) {
+                return Err(invalid(
+                    "rolling_shutter.readout_std_s",
+                    format!("is {}, expected a finite value ≥ 0", r.readout_std_s),
+                ));
+            }
         }
         let mut seen = std::collections::BTreeSet::new();
         for t in &self.terms {

@@ -78,6 +78,7 @@ fn network() -> Network {
                     point: p,
                     uv,
                     weight: 1.0,
+                    time_offset_s: 0.0,
                 });
             }
         }
@@ -141,7 +142,7 @@ fn perturbed(net: &Network, seed: u64, noise_px: f64) -> Problem<BrownModel> {
         })
         .collect();
     let mut p = Problem::new(
-        BrownModel,
+        BrownModel::GLOBAL_SHUTTER,
         poses,
         Vec::new(),
         start.to_array().to_vec(),

@@ -121,6 +121,7 @@ fn a_network_without_roll_diversity_gets_a_loud_warning() {
         model: &model,
         detections: &detections,
         image_size: (1920, 1080),
+        neighbours: &[],
     };
     let cal = calibrate(&input, &CalibrateConfig::default(), &|_| {}).unwrap();
     assert!(
@@ -133,6 +134,7 @@ fn a_network_without_roll_diversity_gets_a_loud_warning() {
         model: &s.model,
         detections: &s.detections,
         image_size: (1920, 1080),
+        neighbours: &[],
     };
     let cal = calibrate(&input, &CalibrateConfig::default(), &|_| {}).unwrap();
     assert!(
@@ -166,6 +168,7 @@ fn frames_without_targets_are_left_out_of_the_adjustment() {
         model: &s.model,
         detections: &detections,
         image_size: (1920, 1080),
+        neighbours: &[],
     };
     let cal = calibrate(&input, &CalibrateConfig::default(), &|m| eprintln!("{m}")).unwrap();
     for k in [3, 7, 11, 20] {

@@ -182,3 +182,127 @@ fn tls_scan_and_targets_sit_on_the_truth_with_the_stated_noise() {
         );
     }
 }
+
+#[test]
+fn video_site_with_focus_breathing_records_each_frames_principal_distance() {
+    use pipemeasure::camera::BrownCamera;
+    use pipemeasure::sim::devices::{FOCUS_REFERENCE_M, P30};
+    use pipemeasure::sim::video::VideoConfig;
+    let dir = tempfile::tempdir().unwrap();
+    let options = SimulateOptions {
+        width: 480,
+        height: 270,
+        seed: 33,
+        video: Some(VideoConfig {
+            focus_breathing: true,
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let mut site = SiteOptions::default();
+    site.site.frames = 6;
+    site.dense.noise_px = 0.0;
+    let truth = simulate_site(&options, &site, dir.path(), &|_| {}).unwrap();
+    let video = truth.video.as_ref().unwrap();
+    assert_eq!(video.focus_breathing_m, P30.focus_breathing_m);
+    assert_eq!(video.readout_s, P30.readout_s);
+    let c0 = truth.camera.intrinsics.c;
+    let mut factors = Vec::new();
+    for frame in &truth.frames {
+        let m = frame.motion.as_ref().unwrap();
+        let factor = m.principal_distance / c0;
+        // The path is 1.5 m from the pipe, the wall 2 m: focused between 1 and 3 m, c is
+        // c·(1 + β·(1/d − 1/2.5)) with β = 5.6 mm.
+        let (near, far) = (
+            1.0 + P30.focus_breathing_m * (1.0 / 1.0 - 1.0 / FOCUS_REFERENCE_M),
+            1.0 + P30.focus_breathing_m * (1.0 / 3.0 - 1.0 / FOCUS_REFERENCE_M),
+        );
+        assert!(
+            (far..=near).contains(&factor),
+            "{}: factor {factor}",
+            frame.name
+        );
+        factors.push(factor);
+        // The views are seen through this frame's camera at their times.
+        let mut camera: BrownCamera = truth.camera.camera();
+        camera.intrinsics.c = m.principal_distance;
+        for v in &frame.targets {
+            let t = truth.targets.iter().find(|t| t.id == v.id).unwrap();
+            let uv = camera
+                .project_world(
+                    &video.trajectory.cam_from_world(v.time_s.unwrap()),
+                    &Vector3::from(t.centre),
+                )
+                .unwrap();
+            assert!((uv - nalgebra::Vector2::from(v.centre_px)).norm() < 1e-8);
+        }
+    }
+    // Focusing nearer than 2.5 m lengthens c: every frame here does.
+    assert!(factors.iter().all(|&f| f > 1.0), "{factors:?}");
+    let views: usize = truth.frames.iter().map(|f| f.targets.len()).sum();
+    println!("factors {factors:?}, {views} target views");
+    // The site's 8 targets, a few in each frame (20 with this seed).
+    assert!(views >= 12, "{views} target views");
+    // Dense observations are where the rolling-shutter camera sees the points: the pose at
+    // the time of the observed row projects the point there (f32 storage: ≤ 1e-4 px).
+    let obs = DenseObservations::read(&dir.path().join("dense/observations.bin")).unwrap();
+    let (mut worst, mut shift, mut checked) = (0.0f64, 0.0f64, 0);
+    for p in obs.points.iter().step_by(5) {
+        for o in &p.observations {
+            let frame = &truth.frames[o.frame as usize];
+            let m = frame.motion.as_ref().unwrap();
+            let mut camera: BrownCamera = truth.camera.camera();
+            camera.intrinsics.c = m.principal_distance;
+            let t = video.shutter(m.time_s).row_time(o.uv.y, camera.height);
+            let uv = camera
+                .project_world(&video.trajectory.cam_from_world(t), &p.position.coords)
+                .unwrap();
+            worst = worst.max((uv - o.uv).norm());
+            let global = camera
+                .project_world(&frame.cam_from_world(), &p.position.coords)
+                .unwrap();
+            shift = shift.max((global - o.uv).norm());
+            checked += 1;
+        }
+    }
+    println!(
+        "{checked} dense observations: worst {worst:.2e} px from their row's projection, up to {shift:.3} px from the frame-time projection"
+    );
+    assert!(
+        checked > 1000 && worst < 2e-4,
+        "{checked} observations, worst {worst} px"
+    );
+    assert!(shift > 0.05, "rolling-shutter shift {shift} px");
+    assert!(truth.dense.as_ref().unwrap().fused_points > 1000);
+    assert!(dir.path().join("frames/frames.json").is_file());
+}
+
+#[test]
+fn motionless_site_is_unchanged_by_the_video_simulator() {
+    // FNV-1a hashes of main's files before video existed (commit 916d7eb; see
+    // tests/sim_lab.rs motionless_rendering_is_unchanged_by_the_video_simulator).
+    let fnv = |bytes: &[u8]| {
+        bytes.iter().fold(0xcbf2_9ce4_8422_2325_u64, |h, b| {
+            (h ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3)
+        })
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let options = SimulateOptions {
+        width: 480,
+        height: 270,
+        seed: 5,
+        ..Default::default()
+    };
+    let mut site = SiteOptions::default();
+    site.site.frames = 4;
+    simulate_site(&options, &site, dir.path(), &|_| {}).unwrap();
+    for (file, hash) in [
+        ("frames/frame_0001.png", 0x8dfe_86e3_46f4_3675_u64),
+        ("frames/frame_0004.png", 0xd0c5_6120_5236_c2a9),
+        ("truth.json", 0x1263_a3df_4417_30c2),
+        ("dense/fused.ply", 0x7b31_6a23_5be6_1b83),
+    ] {
+        let got = fnv(&std::fs::read(dir.path().join(file)).unwrap());
+        assert_eq!(got, hash, "{file}: {got:#018x}");
+    }
+}

@@ -41,6 +41,7 @@ pub fn problem_from_bal(bal: &BalProblem) -> Result<Problem<BalModel>, AdjustErr
             point: o.point,
             uv: Vector2::new(o.xy[0], o.xy[1]),
             weight: 1.0,
+            time_offset_s: 0.0,
         })
         .collect();
     Problem::new(BalModel, poses, local, Vec::new(), points, observations)

@@ -96,7 +96,8 @@ pub fn similarity_from_points(from: &[Vector3<f64>], to: &[Vector3<f64>]) -> Opt
 }
 
 /// Moves a whole network by a similarity of the world: points `X' = s·R·X + t`, poses so that
-/// every image is unchanged (`R_c' = R_c·Rᵀ`, `t_c' = s·t_c − R_c'·t`).
+/// every image is unchanged (`R_c' = R_c·Rᵀ`, `t_c' = s·t_c − R_c'·t`), per-camera values in world units
+/// scaled (a rolling shutter's ν).
 pub fn apply_similarity<M: CameraModel>(problem: &mut Problem<M>, sim: &Similarity) {
     for x in &mut problem.points {
         *x = sim.apply(x);
@@ -105,6 +106,12 @@ pub fn apply_similarity<M: CameraModel>(problem: &mut Problem<M>, sim: &Similari
         let rotation = pose.rotation * sim.rotation.inverse();
         let translation = sim.scale * pose.translation.vector - rotation * sim.translation;
         *pose = Rigid3::from_parts(translation.into(), rotation);
+    }
+    let n = problem.model.local_len();
+    if n > 0 {
+        for local in problem.local.chunks_mut(n) {
+            problem.model.scale_local(local, sim.scale);
+        }
     }
 }
 
@@ -157,6 +164,15 @@ pub fn inner_constraint_basis<M: CameraModel>(problem: &Problem<M>, with_points:
                 b[(base + 3 + i) * 7 + 3 + j] = -rcx[(i, j)];
             }
             b[(base + 3 + i) * 7 + 6] = scale_col[i];
+        }
+        if dims.nl > 0 {
+            let mut direction = vec![0.0; dims.nl];
+            problem
+                .model
+                .local_scale_direction(problem.local_of(c), &mut direction);
+            for (k, d) in direction.iter().enumerate() {
+                b[(base + 6 + k) * 7 + 6] = *d;
+            }
         }
     }
     if with_points {

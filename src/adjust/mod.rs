@@ -25,7 +25,7 @@ pub use datum::{
     Precision, PrecisionRequest, Similarity, apply_similarity, correlation, free_network_datum,
     inner_constraint_basis, precision, similarity_from_points,
 };
-pub use model::{BalModel, BrownModel, CameraModel, ModelJacobians};
+pub use model::{BalModel, BrownModel, CameraModel, ModelJacobians, RowHeight};
 pub use problem::{FixedParameters, Observation, Problem};
 pub use solver::bundle_adjust;
 

@@ -6,6 +6,7 @@
 use nalgebra::{Matrix2x3, Vector2, Vector3};
 
 use crate::camera::Intrinsics;
+use crate::camera::rolling::{self, Motion, RowTiming};
 
 /// Where [`CameraModel::project`] writes its Jacobians.
 #[derive(Debug)]
@@ -27,56 +28,153 @@ pub trait CameraModel: Sync {
     /// Names of the shared parameters (for summaries).
     fn global_names(&self) -> Vec<&'static str>;
     /// Projects a camera-frame point with one camera's `local` and the shared `global`
-    /// parameters, writing the Jacobians when asked; `None` where the model is undefined
-    /// (behind the camera, outside the distortion's valid region).
+    /// parameters, for an observation `time_offset_s` from the camera's frame time (a
+    /// neighbouring video frame; models without motion ignore it), writing the Jacobians
+    /// when asked; `None` where the model is undefined (behind the camera, outside the
+    /// distortion's valid region).
     fn project(
         &self,
         local: &[f64],
         global: &[f64],
         p_cam: &Vector3<f64>,
+        time_offset_s: f64,
         jacobians: Option<ModelJacobians<'_>>,
     ) -> Option<Vector2<f64>>;
+    /// How one camera's `local` parameters change, to first order per unit `ε`, when the world
+    /// is scaled by `1 + ε` (the scale column of the free network's inner constraints, which
+    /// leave every image unchanged); written into `out` (`local_len` values). Default: they do
+    /// not change (focal lengths, distortion).
+    fn local_scale_direction(&self, _local: &[f64], out: &mut [f64]) {
+        out.fill(0.0);
+    }
+    /// Applies a scaling of the world by `s` to one camera's `local` parameters (default:
+    /// none of them is in world units).
+    fn scale_local(&self, _local: &mut [f64], _s: f64) {}
 }
 
 /// The `brown` model with the ten intrinsics of [`crate::camera::Term::ALL`] shared by every
-/// camera (one phone, one calibration).
-#[derive(Clone, Copy, Debug, Default)]
-pub struct BrownModel;
+/// camera (one phone, one calibration); with a rolling shutter
+/// ([`crate::camera::rolling`]), also each camera's motion `(ω, ν)` (6 local values) and the
+/// shared readout time τ (the eleventh shared value, [`BrownModel::READOUT`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct BrownModel {
+    /// The frames' height when they are read out row by row (rolling shutter); `None` for a
+    /// global shutter.
+    pub rolling_shutter: Option<RowHeight>,
+}
+
+/// The frame height (px) that maps a row to its time for [`BrownModel`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RowHeight(pub f64);
+
+impl BrownModel {
+    /// A global shutter: ten shared intrinsics, nothing per camera.
+    pub const GLOBAL_SHUTTER: BrownModel = BrownModel {
+        rolling_shutter: None,
+    };
+    /// Index of the readout time among the shared values of a rolling-shutter model.
+    pub const READOUT: usize = 10;
+
+    /// A rolling shutter on frames `height_px` rows high.
+    #[must_use]
+    pub fn rolling_shutter(height_px: f64) -> Self {
+        BrownModel {
+            rolling_shutter: Some(RowHeight(height_px)),
+        }
+    }
+}
 
 impl CameraModel for BrownModel {
     fn local_len(&self) -> usize {
-        0
+        if self.rolling_shutter.is_some() { 6 } else { 0 }
     }
 
     fn global_len(&self) -> usize {
-        10
+        if self.rolling_shutter.is_some() {
+            11
+        } else {
+            10
+        }
     }
 
     fn global_names(&self) -> Vec<&'static str> {
-        crate::camera::Term::ALL.iter().map(|t| t.name()).collect()
+        let mut names: Vec<&'static str> =
+            crate::camera::Term::ALL.iter().map(|t| t.name()).collect();
+        if self.rolling_shutter.is_some() {
+            names.push("readout");
+        }
+        names
     }
 
     fn project(
         &self,
-        _local: &[f64],
+        local: &[f64],
         global: &[f64],
         p_cam: &Vector3<f64>,
+        time_offset_s: f64,
         jacobians: Option<ModelJacobians<'_>>,
     ) -> Option<Vector2<f64>> {
         let mut a = [0.0; 10];
         a.copy_from_slice(&global[..10]);
         let intrinsics = Intrinsics::from_array(a);
-        match jacobians {
-            None => intrinsics.project(p_cam),
-            Some(j) => {
-                let p = intrinsics.project_with_jacobians(p_cam)?;
-                *j.d_p_cam = p.d_uv_d_p_cam;
-                for r in 0..2 {
-                    for c in 0..10 {
-                        j.d_global[r * 10 + c] = p.d_uv_d_intrinsics[(r, c)];
+        let Some(RowHeight(height_px)) = self.rolling_shutter else {
+            return match jacobians {
+                None => intrinsics.project(p_cam),
+                Some(j) => {
+                    let p = intrinsics.project_with_jacobians(p_cam)?;
+                    *j.d_p_cam = p.d_uv_d_p_cam;
+                    for r in 0..2 {
+                        for c in 0..10 {
+                            j.d_global[r * 10 + c] = p.d_uv_d_intrinsics[(r, c)];
+                        }
                     }
+                    Some(p.uv)
+                }
+            };
+        };
+        let timing = RowTiming {
+            readout_s: global[Self::READOUT],
+            height_px,
+        };
+        let motion = Motion::from_slice(local);
+        match jacobians {
+            None => rolling::project(&intrinsics, &timing, &motion, p_cam, time_offset_s)
+                .map(|(uv, _)| uv),
+            Some(j) => {
+                let p = rolling::project_with_jacobians(
+                    &intrinsics,
+                    &timing,
+                    &motion,
+                    p_cam,
+                    time_offset_s,
+                )?;
+                *j.d_p_cam = p.d_uv_d_p0;
+                for r in 0..2 {
+                    for c in 0..6 {
+                        j.d_local[r * 6 + c] = p.d_uv_d_motion[(r, c)];
+                    }
+                    for c in 0..10 {
+                        j.d_global[r * 11 + c] = p.d_uv_d_intrinsics[(r, c)];
+                    }
+                    j.d_global[r * 11 + Self::READOUT] = p.d_uv_d_readout[r];
                 }
                 Some(p.uv)
+            }
+        }
+    }
+
+    fn local_scale_direction(&self, local: &[f64], out: &mut [f64]) {
+        out.fill(0.0);
+        if self.rolling_shutter.is_some() {
+            // ν is in world units per second: it scales with the world; ω does not.
+            out[3..6].copy_from_slice(&local[3..6]);
+        }
+    }
+
+    fn scale_local(&self, local: &mut [f64], s: f64) {
+        if self.rolling_shutter.is_some() {
+            for v in &mut local[3..6] {
+                *v *= s;
             }
         }
     }
@@ -104,6 +202,7 @@ impl CameraModel for BalModel {
         local: &[f64],
         _global: &[f64],
         p_cam: &Vector3<f64>,
+        _time_offset_s: f64,
         jacobians: Option<ModelJacobians<'_>>,
     ) -> Option<Vector2<f64>> {
         if p_cam.z == 0.0 {
@@ -155,6 +254,7 @@ mod tests {
                 local,
                 global,
                 &p,
+                0.02,
                 Some(ModelJacobians {
                     d_p_cam: &mut dp,
                     d_local: &mut dl,
@@ -162,7 +262,8 @@ mod tests {
                 }),
             )
             .unwrap();
-        let proj = |l: &[f64], g: &[f64], p: &Vector3<f64>| model.project(l, g, p, None).unwrap();
+        let proj =
+            |l: &[f64], g: &[f64], p: &Vector3<f64>| model.project(l, g, p, 0.02, None).unwrap();
         for c in 0..3 {
             let h = 1e-6 * p.norm();
             let (mut a, mut b) = (p, p);
@@ -221,7 +322,46 @@ mod tests {
         let i = [
             3000.0, 1930.0, 1075.0, 0.012, -0.009, 0.004, 1.6e-4, -2e-4, 0.3, -0.2,
         ];
-        check_jacobians(&BrownModel, &[], &i, Vector3::new(0.3, -0.2, 1.7));
+        check_jacobians(
+            &BrownModel::GLOBAL_SHUTTER,
+            &[],
+            &i,
+            Vector3::new(0.3, -0.2, 1.7),
+        );
+    }
+
+    /// The rolling-shutter `brown` model: motion (ω, ν) per camera, the readout time shared.
+    #[test]
+    fn rolling_shutter_brown_jacobians_match_central_differences() {
+        let i = [
+            3000.0, 1930.0, 1075.0, 0.012, -0.009, 0.004, 1.6e-4, -2e-4, 0.3, -0.2, 0.025,
+        ];
+        let motion = [0.05, -0.12, 0.03, 0.08, -0.02, 0.11];
+        check_jacobians(
+            &BrownModel::rolling_shutter(2160.0),
+            &motion,
+            &i,
+            Vector3::new(0.3, -0.2, 1.7),
+        );
+    }
+
+    /// Scaling the world by `s` scales `p_cam` and ν: the image stays the same.
+    #[test]
+    fn rolling_shutter_image_is_unchanged_by_a_scaled_world() {
+        let m = BrownModel::rolling_shutter(2160.0);
+        let g = [
+            3000.0, 1930.0, 1075.0, 0.012, -0.009, 0.004, 1.6e-4, -2e-4, 0.3, -0.2, 0.025,
+        ];
+        let mut local = [0.05, -0.12, 0.03, 0.08, -0.02, 0.11];
+        let p = Vector3::new(0.3, -0.2, 1.7);
+        let before = m.project(&local, &g, &p, 0.04, None).unwrap();
+        let mut direction = [0.0; 6];
+        m.local_scale_direction(&local, &mut direction);
+        assert_eq!(direction[..3], [0.0; 3]);
+        assert_eq!(direction[3..], local[3..]);
+        m.scale_local(&mut local, 2.5);
+        let after = m.project(&local, &g, &(p * 2.5), 0.04, None).unwrap();
+        assert!((after - before).norm() < 1e-9, "{before} {after}");
     }
 
     #[test]
@@ -232,6 +372,7 @@ mod tests {
                 &[100.0, 0.1, 0.01],
                 &[],
                 &Vector3::new(1.0, 2.0, -4.0),
+                0.0,
                 None,
             )
             .unwrap();

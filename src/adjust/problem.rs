@@ -19,6 +19,25 @@ pub struct Observation {
     pub uv: Vector2<f64>,
     /// Weight of both coordinates (1/σ² relative to the unit weight); 0 drops it.
     pub weight: f64,
+    /// Time of the observation's frame from its camera's frame time (s): 0, or `±1/fps` for
+    /// a neighbouring video frame measured with the camera's motion (rolling-shutter models;
+    /// others ignore it).
+    pub time_offset_s: f64,
+}
+
+impl Observation {
+    /// A measurement of `point` by `camera` at `uv` with unit weight, in the camera's own
+    /// frame.
+    #[must_use]
+    pub fn new(camera: usize, point: usize, uv: Vector2<f64>) -> Self {
+        Observation {
+            camera,
+            point,
+            uv,
+            weight: 1.0,
+            time_offset_s: 0.0,
+        }
+    }
 }
 
 /// Parameters held at their current value.
@@ -110,7 +129,11 @@ impl<M: CameraModel> Problem<M> {
                     self.points.len()
                 ));
             }
-            if !(o.uv.iter().all(|v| v.is_finite()) && o.weight.is_finite() && o.weight >= 0.0) {
+            if !(o.uv.iter().all(|v| v.is_finite())
+                && o.weight.is_finite()
+                && o.weight >= 0.0
+                && o.time_offset_s.is_finite())
+            {
                 return invalid(format!(
                     "observation {k} is not finite or has a negative weight"
                 ));
@@ -154,7 +177,13 @@ impl<M: CameraModel> Problem<M> {
     pub fn residual(&self, o: &Observation) -> Option<Vector2<f64>> {
         let p_cam = self.cam_from_world[o.camera] * nalgebra::Point3::from(self.points[o.point]);
         self.model
-            .project(self.local_of(o.camera), &self.global, &p_cam.coords, None)
+            .project(
+                self.local_of(o.camera),
+                &self.global,
+                &p_cam.coords,
+                o.time_offset_s,
+                None,
+            )
             .map(|uv| uv - o.uv)
     }
 
@@ -175,5 +204,39 @@ impl<M: CameraModel> Problem<M> {
             + n_cam * (self.model.local_len() - fl.len())
             + (self.global.len() - fg.len())
             + 3 * self.points.len()
+    }
+}
+
+impl Problem<super::BrownModel> {
+    /// The same problem with a rolling shutter on frames `height_px` rows high: every camera's
+    /// motion `(ω, ν)` appended at zero (its per-camera values) and the readout time
+    /// `readout_s` as the eleventh shared value; fixed parameters carried over, the motion and
+    /// the readout time free. Already rolling: only the height and readout time are set.
+    #[must_use]
+    pub fn with_rolling_shutter(&self, height_px: f64, readout_s: f64) -> Self {
+        let mut p = self.clone();
+        p.model = super::BrownModel::rolling_shutter(height_px);
+        if self.model.rolling_shutter.is_none() {
+            p.local = vec![0.0; 6 * self.num_cameras()];
+            p.global.truncate(10);
+            p.global.push(readout_s);
+            p.fixed.local.clear();
+        } else {
+            p.global[super::BrownModel::READOUT] = readout_s;
+        }
+        p
+    }
+
+    /// The same problem with a global shutter: the motions and the readout time dropped (and
+    /// any fixed-parameter index of them).
+    #[must_use]
+    pub fn without_rolling_shutter(&self) -> Self {
+        let mut p = self.clone();
+        p.model = super::BrownModel::GLOBAL_SHUTTER;
+        p.local.clear();
+        p.global.truncate(10);
+        p.fixed.local.clear();
+        p.fixed.global.retain(|&k| k < 10);
+        p
     }
 }

@@ -172,6 +172,7 @@ pub(crate) fn linearise<M: CameraModel>(
         p.local_of(obs.camera),
         &p.global,
         &p_cam,
+        obs.time_offset_s,
         Some(ModelJacobians {
             d_p_cam: &mut d_p_cam,
             d_local,

@@ -7,6 +7,7 @@ pub mod check_points;
 pub mod checks;
 pub mod eccentricity;
 pub mod matching;
+pub mod neighbours;
 pub mod network;
 pub mod pipeline;
 pub mod poses;

@@ -23,43 +23,88 @@ use nalgebra::Vector2;
 use serde::Serialize;
 
 use crate::adjust::{
-    AdjustConfig, AdjustError, AdjustSummary, BrownModel, Precision, PrecisionRequest, Problem,
-    bundle_adjust, precision,
+    AdjustConfig, AdjustError, AdjustSummary, BrownModel, Observation, Precision, PrecisionRequest,
+    Problem, bundle_adjust, precision,
 };
 use crate::camera::Term;
+
+/// One candidate of the selection.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Candidate {
+    /// A group of intrinsics added as a whole.
+    Terms(Vec<Term>),
+    /// The rolling-shutter model ([`crate::camera::rolling`]): a motion `(ω, ν)` per frame
+    /// (6 values) and the readout time, estimated when the frames' neighbours say how fast
+    /// the camera moved, else held at its given value ([`RollingShutterSetup`]). Tried only
+    /// when [`SelectionConfig::rolling_shutter`] is set.
+    RollingShutter,
+}
+
+/// What the rolling-shutter candidate starts from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RollingShutterSetup {
+    /// Frame height (px): rows → times.
+    pub height_px: f64,
+    /// Readout time to start from, or to hold (s).
+    pub readout_s: f64,
+    /// Estimate the readout time: only when observations in neighbouring video frames
+    /// (`time_offset_s ≠ 0`) tie the frames' motion to time; with one frame per instant only
+    /// the products readout × velocity show in the image.
+    pub estimate_readout: bool,
+}
 
 /// How terms are selected.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SelectionConfig {
-    /// Candidates in the order they are tried; each group is added as a whole.
-    pub candidates: Vec<Vec<Term>>,
+    /// Candidates in the order they are tried.
+    pub candidates: Vec<Candidate>,
     /// Critical |t| of a significant term (3.29: two-sided 0.1 %).
     pub t_critical: f64,
     /// Critical F of a remaining radial trend ([`TREND_CRITICAL`]).
     pub trend_critical: f64,
+    /// The rolling-shutter candidate's setup; `None` (default) leaves it out.
+    pub rolling_shutter: Option<RollingShutterSetup>,
 }
 
 impl Default for SelectionConfig {
+    /// The radial terms, then p1+p2 and b1+b2; the rolling shutter is tried after them
+    /// ([`select_terms`]).
     fn default() -> Self {
         SelectionConfig {
             candidates: vec![
-                vec![Term::K1],
-                vec![Term::K2],
-                vec![Term::K3],
-                vec![Term::P1, Term::P2],
-                vec![Term::B1, Term::B2],
+                Candidate::Terms(vec![Term::K1]),
+                Candidate::Terms(vec![Term::K2]),
+                Candidate::Terms(vec![Term::K3]),
+                Candidate::Terms(vec![Term::P1, Term::P2]),
+                Candidate::Terms(vec![Term::B1, Term::B2]),
+                Candidate::RollingShutter,
             ],
             t_critical: 3.29,
             trend_critical: TREND_CRITICAL,
+            rolling_shutter: None,
         }
     }
+}
+
+/// `z` of the one-sided 0.999 normal quantile.
+const Z_999: f64 = 3.090_232;
+
+/// `χ²(0.999; k)` by the Wilson–Hilferty approximation (good to a fraction of a percent for
+/// the hundreds of degrees of freedom of a video's motions).
+#[must_use]
+pub fn chi2_999(k: usize) -> f64 {
+    let k = k.max(1) as f64;
+    let h = 2.0 / (9.0 * k);
+    k * (1.0 - h + Z_999 * h.sqrt()).powi(3)
 }
 
 /// One decision of the selection, for the log and the report.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct SelectionStep {
-    /// The candidate tried.
+    /// The candidate tried (its terms; empty for the rolling shutter).
     pub candidate: Vec<Term>,
+    /// Whether the candidate was the rolling-shutter model.
+    pub rolling_shutter: bool,
     /// Whether it was kept.
     pub accepted: bool,
     /// t-values of its estimates (empty when it was not tried).
@@ -81,6 +126,7 @@ impl SelectionStep {
     fn not_tried(candidate: &[Term], best: &Fit, reason: String) -> Self {
         SelectionStep {
             candidate: candidate.to_vec(),
+            rolling_shutter: false,
             accepted: false,
             t_values: Vec::new(),
             bic_before: best.bic,
@@ -117,6 +163,46 @@ pub struct Selected {
     pub steps: Vec<SelectionStep>,
     /// Radial residuals `(r_px, v_r_px)` of the model with c, u0, v0 only.
     pub radial_base: Vec<(f64, f64)>,
+    /// Bayesian information criterion of the chosen model (module docs).
+    pub bic: f64,
+    /// The rolling-shutter model, when it was kept (the problem's model then has it).
+    pub rolling_shutter: Option<RollingShutterSetup>,
+    /// σ of the readout time estimated from the neighbouring video frames
+    /// ([`estimate_readout_time`]), s; `None` when it was held.
+    pub readout_std_s: Option<f64>,
+    /// Weight of the observations in the neighbouring video frames relative to the frames'
+    /// (their variance component, [`estimate_readout_time`]); `None` without them.
+    pub neighbour_weight: Option<f64>,
+}
+
+impl Selected {
+    /// The model chosen.
+    #[must_use]
+    pub fn choice(&self) -> ModelChoice {
+        ModelChoice {
+            terms: self.terms.clone(),
+            rolling_shutter: self.rolling_shutter.is_some(),
+        }
+    }
+}
+
+/// A model the selection can end with: its intrinsics and whether the rolling shutter is in.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct ModelChoice {
+    /// The intrinsics estimated.
+    pub terms: Vec<Term>,
+    /// Whether the frames' readout motion is modelled.
+    pub rolling_shutter: bool,
+}
+
+impl std::fmt::Display for ModelChoice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&names_list(&self.terms, ", "))?;
+        if self.rolling_shutter {
+            f.write_str(", rolling shutter")?;
+        }
+        Ok(())
+    }
 }
 
 /// Radial residuals `(r, v_r)` in pixels of an adjusted `brown` problem: the component of
@@ -202,9 +288,12 @@ pub fn radial_trend(samples: &[(f64, f64)]) -> RadialTrend {
     }
 }
 
+/// Adjusts `problem` with the intrinsics `free` (the others fixed); a rolling-shutter
+/// problem's motions are free and its readout time free when `readout_free`.
 fn fit(
     mut problem: Problem<BrownModel>,
     free: &[Term],
+    readout_free: bool,
     adjust: &AdjustConfig,
 ) -> Result<Fit, AdjustError> {
     problem.fixed.global = Term::ALL
@@ -212,6 +301,9 @@ fn fit(
         .filter(|t| !free.contains(t))
         .map(|t| t.index())
         .collect();
+    if problem.model.rolling_shutter.is_some() && !readout_free {
+        problem.fixed.global.push(BrownModel::READOUT);
+    }
     let summary = bundle_adjust(&mut problem, adjust)?;
     let precision = precision(&problem, PrecisionRequest::default())?;
     let n = 2.0 * precision.observations as f64;
@@ -228,7 +320,18 @@ fn fit(
     })
 }
 
-/// Runs the stepwise selection from `problem` (its distortion terms are reset to zero first).
+/// Runs the stepwise selection from `problem` (its distortion terms are reset to zero first;
+/// a rolling-shutter problem starts without its motions).
+///
+/// The intrinsics are selected first with a global shutter. The rolling shutter, when
+/// [`SelectionConfig::rolling_shutter`] is set and [`Candidate::RollingShutter`] is a
+/// candidate, is then tried on top of them; when it is kept, every term is selected again
+/// from c, u0, v0 with the motions in the model. Tried earlier, the motions would take up
+/// what decentring and affinity terms not yet chosen leave (a roll rate common to the frames
+/// mimics p2 with u0; a pan or tilt rate b2 or b1): on a motionless lab they lowered σ0 by a
+/// sixth before p1, p2 were in. Tried later without the second pass, the terms chosen under
+/// the motions' residuals (no radial trend visible under 0.5 px of shear, b1 and b2 taking
+/// part of it) would stay.
 ///
 /// # Errors
 /// [`AdjustError`] when even the base model (c, u0, v0) cannot be adjusted.
@@ -238,23 +341,109 @@ pub fn select_terms(
     adjust: &AdjustConfig,
     log: &dyn Fn(&str),
 ) -> Result<Selected, AdjustError> {
-    let mut start = problem.clone();
+    let mut start = problem.without_rolling_shutter();
     for t in &Term::ALL[3..] {
         start.global[t.index()] = 0.0;
     }
-    let mut terms = vec![Term::C, Term::U0, Term::V0];
-    let mut best = fit(start, &terms, adjust)?;
-    let radial_base = radial_residuals(&best.problem);
-    log(&format!(
-        "terms c, u0, v0: σ0 {:.4} px, BIC {:.1}, radial trend {:.4} px (F {:.1})",
-        best.precision.sigma0, best.bic, best.trend.rms_px, best.trend.f
-    ));
+    let base_terms = vec![Term::C, Term::U0, Term::V0];
+    let base = fit(start, &base_terms, false, adjust)?;
+    let radial_base = radial_residuals(&base.problem);
     let mut steps = Vec::new();
+    let (mut best, mut terms) = stepwise(
+        base,
+        base_terms.clone(),
+        config,
+        Stage::GlobalShutter,
+        &mut steps,
+        adjust,
+        log,
+    );
+    let mut rolling = None;
+    if let Some(setup) = config.rolling_shutter
+        && config.candidates.contains(&Candidate::RollingShutter)
+    {
+        let (step, kept) = try_rolling_shutter(&best, &terms, setup, adjust, log);
+        steps.push(step);
+        if let Some(trial) = kept {
+            log("rolling shutter kept: the terms are selected again with it");
+            let mut start = trial.problem;
+            for t in &Term::ALL[3..] {
+                start.global[t.index()] = 0.0;
+            }
+            let base = fit(start, &base_terms, false, adjust)?;
+            (best, terms) = stepwise(
+                base,
+                base_terms,
+                config,
+                Stage::RollingShutter,
+                &mut steps,
+                adjust,
+                log,
+            );
+            rolling = Some(setup);
+        }
+    }
+    Ok(Selected {
+        problem: best.problem,
+        terms,
+        precision: best.precision,
+        summary: best.summary,
+        steps,
+        radial_base,
+        bic: best.bic,
+        rolling_shutter: rolling,
+        readout_std_s: None,
+        neighbour_weight: None,
+    })
+}
+
+/// What the model of a stepwise pass has besides the intrinsics.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    /// A global shutter.
+    GlobalShutter,
+    /// The frames' motions, the readout time held.
+    RollingShutter,
+    /// The motions, the neighbours' observations and the readout time free.
+    WithNeighbours,
+}
+
+/// The forward stepwise selection of the intrinsic candidates of `config` not yet in `terms`
+/// from `best` (its `terms` free), each kept when significant and lowering the BIC; the
+/// decisions are appended to `steps`.
+fn stepwise(
+    mut best: Fit,
+    mut terms: Vec<Term>,
+    config: &SelectionConfig,
+    stage: Stage,
+    steps: &mut Vec<SelectionStep>,
+    adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
+) -> (Fit, Vec<Term>) {
+    log(&format!(
+        "terms {}{}: σ0 {:.4} px, BIC {:.1}, radial trend {:.4} px (F {:.1})",
+        names_list(&terms, ", "),
+        match stage {
+            Stage::GlobalShutter => "",
+            Stage::RollingShutter => " and the rolling shutter",
+            Stage::WithNeighbours => {
+                " and the rolling shutter with the neighbouring video frames"
+            }
+        },
+        best.precision.sigma0,
+        best.bic,
+        best.trend.rms_px,
+        best.trend.f
+    ));
     let mut radial_done = false;
     for candidate in &config.candidates {
-        let radial = candidate
-            .iter()
-            .all(|t| matches!(t, Term::K1 | Term::K2 | Term::K3));
+        let Candidate::Terms(group) = candidate else {
+            continue;
+        };
+        if group.iter().all(|t| terms.contains(t)) {
+            continue;
+        }
+        let radial = is_radial(group);
         if radial && radial_done {
             continue;
         }
@@ -263,25 +452,28 @@ pub fn select_terms(
                 "no radial trend remains (F {:.2} ≤ {:.2}): radial terms stop",
                 best.trend.f, config.trend_critical
             );
-            log(&format!("{}: {reason}", names(candidate)));
-            steps.push(SelectionStep::not_tried(candidate, &best, reason));
+            log(&format!("{}: {reason}", names(group)));
+            steps.push(SelectionStep::not_tried(group, &best, reason));
             radial_done = true;
             continue;
         }
         let mut trial_terms = terms.clone();
-        trial_terms.extend(candidate.iter().copied());
-        let trial = match fit(best.problem.clone(), &trial_terms, adjust) {
+        trial_terms.extend(group.iter().copied());
+        // The readout time is held without the neighbours (one frame per instant shows only
+        // the products readout × velocity).
+        let readout_free = stage == Stage::WithNeighbours;
+        let trial = match fit(best.problem.clone(), &trial_terms, readout_free, adjust) {
             Ok(t) => t,
             Err(e) => {
                 let reason = format!("adjustment failed: {e}");
-                log(&format!("{}: {reason}", names(candidate)));
-                steps.push(SelectionStep::not_tried(candidate, &best, reason));
+                log(&format!("{}: {reason}", names(group)));
+                steps.push(SelectionStep::not_tried(group, &best, reason));
                 radial_done |= radial;
                 continue;
             }
         };
         let std = trial.precision.global_std();
-        let t_values: Vec<f64> = candidate
+        let t_values: Vec<f64> = group
             .iter()
             .map(|t| trial.problem.global[t.index()] / std[t.index()])
             .collect();
@@ -297,7 +489,7 @@ pub fn select_terms(
         };
         log(&format!(
             "{}: t = {}, BIC {:.1} → {:.1}, radial trend {:.4} → {:.4} px: {}",
-            names(candidate),
+            names(group),
             t_values
                 .iter()
                 .map(|t| format!("{t:.1}"))
@@ -314,7 +506,8 @@ pub fn select_terms(
             }
         ));
         steps.push(SelectionStep {
-            candidate: candidate.clone(),
+            candidate: group.clone(),
+            rolling_shutter: false,
             accepted,
             t_values,
             bic_before: best.bic,
@@ -330,16 +523,274 @@ pub fn select_terms(
             radial_done = true;
         }
     }
+    (best, terms)
+}
+
+/// Tries the rolling-shutter model on top of `best` (intrinsics `terms` free): kept when its
+/// motions are significant as a group — the drop of `vᵀPv` over `σ0²` of the trial beyond
+/// `χ²(0.999; k)` for its `k` new unknowns (a likelihood-ratio test: no single velocity need
+/// be significant) — and it lowers the BIC, whose `k·ln(n)` penalty weighs the six unknowns
+/// per frame.
+fn try_rolling_shutter(
+    best: &Fit,
+    terms: &[Term],
+    setup: RollingShutterSetup,
+    adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
+) -> (SelectionStep, Option<Fit>) {
+    let start = best
+        .problem
+        .with_rolling_shutter(setup.height_px, setup.readout_s);
+    let trial = match fit(start, terms, setup.estimate_readout, adjust) {
+        Ok(t) => t,
+        Err(e) => {
+            let reason = format!("adjustment failed: {e}");
+            log(&format!("rolling shutter: {reason}"));
+            let mut step = SelectionStep::not_tried(&[], best, reason);
+            step.rolling_shutter = true;
+            return (step, None);
+        }
+    };
+    let vtpv = |f: &Fit| f.precision.sigma0.powi(2) * f.precision.redundancy as f64;
+    let k = trial.problem.num_free_parameters() - best.problem.num_free_parameters();
+    let statistic = (vtpv(best) - vtpv(&trial)) / trial.precision.sigma0.powi(2).max(1e-300);
+    let critical = chi2_999(k);
+    let significant = statistic > critical;
+    let lower_bic = trial.bic < best.bic;
+    let accepted = significant && lower_bic;
+    let t_values = if setup.estimate_readout {
+        let std = trial.precision.global_std();
+        vec![trial.problem.global[BrownModel::READOUT] / std[BrownModel::READOUT]]
+    } else {
+        Vec::new()
+    };
+    let reason = if accepted {
+        "significant, lowers BIC".to_string()
+    } else if !significant {
+        format!("not significant (χ² {statistic:.1} ≤ {critical:.1} for {k} unknowns)")
+    } else {
+        "does not lower BIC".to_string()
+    };
+    log(&format!(
+        "rolling shutter ({k} unknowns{}): χ² {statistic:.1} (critical {critical:.1}), σ0 {:.4} → {:.4} px, BIC {:.1} → {:.1}: {}",
+        if setup.estimate_readout {
+            format!(
+                ", readout {:.2} ms estimated",
+                1e3 * trial.problem.global[BrownModel::READOUT]
+            )
+        } else {
+            format!(", readout held at {:.2} ms", 1e3 * setup.readout_s)
+        },
+        best.precision.sigma0,
+        trial.precision.sigma0,
+        best.bic,
+        trial.bic,
+        if accepted {
+            format!("kept ({reason})")
+        } else {
+            format!("refused ({reason})")
+        }
+    ));
+    let step = SelectionStep {
+        candidate: Vec::new(),
+        rolling_shutter: true,
+        accepted,
+        t_values,
+        bic_before: best.bic,
+        bic_after: trial.bic,
+        trend_before: best.trend,
+        trend_after: Some(trial.trend),
+        reason,
+    };
+    (step, accepted.then_some(trial))
+}
+
+/// The readout time of a selected rolling-shutter model estimated with the `extra`
+/// observations of its targets in the frames' neighbours in the video (each at its
+/// `time_offset_s`): they show how far the frames moved in a known time, which ties the
+/// motions to time and separates the readout time from them. They also fix what the frames
+/// alone cannot: a roll rate common to all frames shifts columns in proportion to the row
+/// and trades with u0 and p2 (`u0 ↔ yaw + p2 + ω_z`), a pan rate and a tilt rate with b2 and
+/// b1. The terms stay those selected.
+///
+/// A frame's motion is first order about its time, which hand tremor (4–12 Hz) bends over
+/// `±1/fps` far more than over the readout: the neighbours' residuals are larger than the
+/// frames'. Their weight is set by a variance-component estimate (Förstner 1979, simplified
+/// to the groups' RMS residuals), `w = (RMS of the frames / RMS of the neighbours)²`, iterated
+/// until it changes by less than 10 % (at most [`VARIANCE_COMPONENT_ITERATIONS`] times), so
+/// that σ0 and the covariance stay those of the frames' observations.
+///
+/// # Errors
+/// [`AdjustError::Invalid`] for a model without a rolling shutter or observations that do not
+/// fit the problem; [`AdjustError`] when the adjustment cannot run.
+pub fn estimate_readout_time(
+    selected: Selected,
+    extra: &[Observation],
+    config: &SelectionConfig,
+    adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
+) -> Result<Selected, AdjustError> {
+    let Some(setup) = selected.rolling_shutter else {
+        return Err(AdjustError::Invalid(
+            "the readout time is estimated only for a rolling-shutter model".into(),
+        ));
+    };
+    let own = selected.problem.observations.len();
+    let mut current = selected.problem.clone();
+    // Start from the neighbours' residuals at the selected model (its motions fit the frames
+    // alone): the weight's fixed point reached from 1 is the compromise where both groups fit
+    // equally badly, not the frames' precision.
+    let mut weight = (group_rms(&current, &current.observations)
+        / group_rms(&current, extra).max(f64::MIN_POSITIVE))
+    .powi(2)
+    .min(1.0);
+    let mut fitted = None;
+    for _ in 0..VARIANCE_COMPONENT_ITERATIONS {
+        let mut observations = selected.problem.observations.clone();
+        observations.extend(extra.iter().map(|o| Observation { weight, ..*o }));
+        let mut problem = Problem::new(
+            current.model,
+            current.cam_from_world.clone(),
+            current.local.clone(),
+            current.global.clone(),
+            current.points.clone(),
+            observations,
+        )?;
+        problem.fixed = selected.problem.fixed.clone();
+        let fit_now = fit(problem, &selected.terms, true, adjust)?;
+        let (frames_rms, neighbours_rms) = (
+            group_rms(&fit_now.problem, &fit_now.problem.observations[..own]),
+            group_rms(&fit_now.problem, &fit_now.problem.observations[own..]),
+        );
+        let next = (frames_rms / neighbours_rms.max(f64::MIN_POSITIVE))
+            .powi(2)
+            .min(1.0);
+        current = fit_now.problem.clone();
+        fitted = Some(fit_now);
+        let settled = (next / weight - 1.0).abs() < 0.1;
+        weight = next;
+        if settled {
+            break;
+        }
+    }
+    let Some(fitted) = fitted else {
+        return Err(AdjustError::Invalid(
+            "no variance-component iteration ran".into(),
+        ));
+    };
+    // The terms the motions hid (a decentring whose p2 a common roll rate could mimic) are
+    // tried again now that the neighbours fix the motions.
+    let mut steps = selected.steps.clone();
+    let (fitted, terms) = stepwise(
+        fitted,
+        selected.terms.clone(),
+        config,
+        Stage::WithNeighbours,
+        &mut steps,
+        adjust,
+        log,
+    );
+    let readout_std_s = fitted.precision.global_std()[BrownModel::READOUT];
     Ok(Selected {
-        problem: best.problem,
         terms,
-        precision: best.precision,
-        summary: best.summary,
         steps,
-        radial_base,
+        rolling_shutter: Some(RollingShutterSetup {
+            estimate_readout: true,
+            readout_s: fitted.problem.global[BrownModel::READOUT],
+            ..setup
+        }),
+        problem: fitted.problem,
+        precision: fitted.precision,
+        summary: fitted.summary,
+        bic: fitted.bic,
+        readout_std_s: Some(readout_std_s),
+        neighbour_weight: Some(weight),
+        ..selected
     })
 }
 
+/// RMS residual per coordinate of `observations` in `problem` (px).
+fn group_rms(problem: &Problem<BrownModel>, observations: &[Observation]) -> f64 {
+    let (sum, n) = observations
+        .iter()
+        .filter_map(|o| problem.residual(o))
+        .fold((0.0, 0usize), |(s, n), r| (s + r.norm_squared(), n + 1));
+    (sum / (2 * n.max(1)) as f64).sqrt()
+}
+
+/// Most adjustments of the neighbours' variance component ([`estimate_readout_time`]).
+pub const VARIANCE_COMPONENT_ITERATIONS: usize = 4;
+
+/// Adjusts `problem` with the model `choice` and no selection (the other intrinsics reset to
+/// zero and fixed; the rolling shutter of `setup` when the choice has it): the calibration
+/// loop's model once the selection alternated between two ([`super::pipeline`]).
+///
+/// # Errors
+/// [`AdjustError`] when either the base model (c, u0, v0, for the radial residuals of the
+/// report) or the chosen model cannot be adjusted, or [`AdjustError::Invalid`] for a choice
+/// with a rolling shutter and no `setup`.
+pub fn adjust_terms(
+    problem: &Problem<BrownModel>,
+    choice: &ModelChoice,
+    setup: Option<RollingShutterSetup>,
+    adjust: &AdjustConfig,
+) -> Result<Selected, AdjustError> {
+    let terms = &choice.terms;
+    let rolling = if choice.rolling_shutter {
+        Some(setup.ok_or_else(|| {
+            AdjustError::Invalid("a rolling-shutter model needs its setup".into())
+        })?)
+    } else {
+        None
+    };
+    let mut start = match rolling {
+        Some(_) if problem.model.rolling_shutter.is_some() => problem.clone(),
+        Some(r) => problem.with_rolling_shutter(r.height_px, r.readout_s),
+        None => problem.without_rolling_shutter(),
+    };
+    let mut bare = problem.without_rolling_shutter();
+    for t in &Term::ALL[3..] {
+        bare.global[t.index()] = 0.0;
+        if !terms.contains(t) {
+            start.global[t.index()] = 0.0;
+        }
+    }
+    let base = fit(bare, &[Term::C, Term::U0, Term::V0], false, adjust)?;
+    let chosen = fit(
+        start,
+        terms,
+        rolling.is_some_and(|r| r.estimate_readout),
+        adjust,
+    )?;
+    Ok(Selected {
+        problem: chosen.problem,
+        terms: terms.to_vec(),
+        precision: chosen.precision,
+        summary: chosen.summary,
+        steps: Vec::new(),
+        radial_base: radial_residuals(&base.problem),
+        bic: chosen.bic,
+        rolling_shutter: rolling,
+        readout_std_s: None,
+        neighbour_weight: None,
+    })
+}
+
+/// A group of radial terms only.
+fn is_radial(group: &[Term]) -> bool {
+    group
+        .iter()
+        .all(|t| matches!(t, Term::K1 | Term::K2 | Term::K3))
+}
+
 fn names(terms: &[Term]) -> String {
-    terms.iter().map(|t| t.name()).collect::<Vec<_>>().join("+")
+    names_list(terms, "+")
+}
+
+fn names_list(terms: &[Term], separator: &str) -> String {
+    terms
+        .iter()
+        .map(|t| t.name())
+        .collect::<Vec<_>>()
+        .join(separator)
 }

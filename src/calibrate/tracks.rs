@@ -12,7 +12,10 @@
 //!    other (the candidates, found per frame rather than among all pairs of tracks), they share
 //!    no frame, and the point triangulated from all their views reprojects within the gate in
 //!    every view, before and after Algorithm 3 corrects the centres with partners from both
-//!    (the epipolar consistency of every pair of their views, and more);
+//!    (the epipolar consistency of every pair of their views, and more); or, when their points
+//!    are unambiguously one target (closer to each other than a quarter of their distance to
+//!    any other track), with each view's gate widened by the shift the merge brings to its
+//!    own point's image, leaving out the shorter track's views that still do not fit;
 //! 2. **grows** every track of three or more views, longest first, by the observations nearest
 //!    its point in the frames it lacks, taking them from nobody or from a track of fewer views
 //!    — a two-view track cannot be checked (two rays always have a closest point), and a
@@ -83,10 +86,14 @@ pub fn target_sigma(tracks: &[Track], cameras: &[FrameCamera]) -> Option<f64> {
 }
 
 /// The gate (px): `√χ²₀.₉₉₉,₂` times the targets' robust σ, or the 99.9th percentile of the
-/// reprojection errors of tracks of five or more views when that is larger. Pose errors are
-/// shared by every target of a frame, so the errors of a long track have heavier tails than
-/// independent noise of the median's σ (measured on a hand-held video of a dot grid with poses
-/// from its SfM features: the largest error of a true 36-view track 1.5× the Gaussian gate).
+/// reprojection errors of tracks of five or more views when that is larger, up to
+/// [`MAX_GATE_WIDENING`] times the Gaussian gate. Pose errors are shared by every target of a
+/// frame, so the errors of a long track have heavier tails than independent noise of the
+/// median's σ (measured on a hand-held video of a dot grid with poses from its SfM features:
+/// the largest error of a true 36-view track 1.5× the Gaussian gate). The cap keeps the wrong
+/// views of a first matching from widening the gate for more of them: on BoofCV's hexagonal
+/// grid video the first iteration's percentile was a neighbour dot's distance (66 px for a
+/// Gaussian gate of about 1 px), and the loop started from σ0 2.9 px.
 fn gate(tracks: &[Track], cameras: &[FrameCamera], sigma: f64) -> f64 {
     let gaussian = SQRT_CHI2_999_2DOF * sigma.max(1e-3);
     let mut r2 = squared_residuals(tracks, cameras, 5);
@@ -95,8 +102,11 @@ fn gate(tracks: &[Track], cameras: &[FrameCamera], sigma: f64) -> f64 {
     }
     let k = (r2.len() * 999) / 1000;
     let (_, q, _) = r2.select_nth_unstable_by(k, f64::total_cmp);
-    gaussian.max(q.sqrt())
+    q.sqrt().clamp(gaussian, MAX_GATE_WIDENING * gaussian)
 }
+
+/// How far the tails of long tracks may widen the gate beyond the Gaussian one ([`gate`]).
+const MAX_GATE_WIDENING: f64 = 2.0;
 
 /// Undistorted pixel of a world point in a frame, if it is in front.
 fn project(camera: &FrameCamera, x: &Point3<f64>) -> Option<Vector2<f64>> {
@@ -126,27 +136,113 @@ impl Context<'_> {
         eccentricity_bound(e.a, e.b, self.cameras[frame].intrinsics.c)
     }
 
-    /// Whether a view reprojects from `x` within the gate (its fitted centre within the gate
-    /// plus its eccentricity bound when Algorithm 3 did not correct it).
-    fn fits(&self, v: &TrackView, x: &Point3<f64>) -> bool {
+    /// Whether a view reprojects from `x` within the gate plus `allowance` (px): its fitted
+    /// centre within them plus its eccentricity bound when Algorithm 3 did not correct it.
+    fn fits_within(&self, v: &TrackView, x: &Point3<f64>, allowance: f64) -> bool {
         let slack = if v.corrected.is_some() {
             0.0
         } else {
             self.bound(v.frame, v.obs)
         };
         project(&self.cameras[v.frame], x)
-            .is_some_and(|uv| (uv - v.best_centre()).norm() <= self.gate + slack)
+            .is_some_and(|uv| (uv - v.best_centre()).norm() <= self.gate + slack + allowance)
+    }
+
+    /// Two tracks in disjoint frames whose points are unambiguously one target (each of three
+    /// or more views, closer to each other than [`UNAMBIGUOUS_FRACTION`] of their distance to
+    /// any other track: `others` is the nearer of the two's distances to their nearest other
+    /// track) made one: the longer track with the shorter one's views, each judged against
+    /// the joint point with the gate widened by how far the joint point's image lies from
+    /// its own track's point's image; while the joint track fails, the shorter track's view
+    /// farthest from the longer track's point is left out (with the robust triangulation's
+    /// rejects), down to the longer track as it was. The two points differ by errors that the frames of each share (pose errors,
+    /// rolling shutter, a biased edge in some frames), not by noise alone: measured on
+    /// BoofCV's hand-held dot-grid videos, 1.2–1.5 % of the dots stayed split into tracks of
+    /// disjoint frames, their points 1.5–5 % of the dot spacing apart (up to 10 × their
+    /// noise), the joint track's worst view at 1.01–1.1 × the gate.
+    fn join_unambiguous(&self, a: &Track, b: &Track, others: f64) -> Option<Track> {
+        if a.views.len() < 3
+            || b.views.len() < 3
+            || (a.point - b.point).norm() > UNAMBIGUOUS_FRACTION * others
+        {
+            return None;
+        }
+        let own: std::collections::HashMap<usize, Point3<f64>> = a
+            .views
+            .iter()
+            .map(|v| (v.frame, a.point))
+            .chain(b.views.iter().map(|v| (v.frame, b.point)))
+            .collect();
+        let shift = |v: &TrackView, x: &Point3<f64>| {
+            let camera = &self.cameras[v.frame];
+            match (
+                own.get(&v.frame).and_then(|p| project(camera, p)),
+                project(camera, x),
+            ) {
+                (Some(p), Some(q)) => (p - q).norm(),
+                _ => 0.0,
+            }
+        };
+        let (long, short) = if a.views.len() >= b.views.len() {
+            (a, b)
+        } else {
+            (b, a)
+        };
+        // The shorter track's views, nearest the longer track's point first.
+        let distance = |v: &TrackView| {
+            project(&self.cameras[v.frame], &long.point)
+                .map_or(f64::INFINITY, |uv| (uv - v.best_centre()).norm())
+        };
+        let mut extra: Vec<(f64, TrackView)> =
+            short.views.iter().map(|v| (distance(v), *v)).collect();
+        extra.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.frame.cmp(&y.1.frame)));
+        let mut rejected = long.rejected.clone();
+        rejected.extend(short.rejected.iter().copied());
+        while !extra.is_empty() {
+            let views: Vec<TrackView> = long
+                .views
+                .iter()
+                .copied()
+                .chain(extra.iter().map(|(_, v)| *v))
+                .collect();
+            if let Some(track) = self.solve_with(views, rejected.clone(), &shift) {
+                return Some(track);
+            }
+            if let Some((_, left_out)) = extra.pop() {
+                rejected.push((left_out.frame, left_out.obs));
+            }
+        }
+        // None of the shorter track's views fits: the longer track stays as it was.
+        Some(Track {
+            rejected,
+            ..long.clone()
+        })
     }
 
     /// One target's views (no two in a frame, sorted by frame) corrected by Algorithm 3 and
     /// triangulated, if every view then fits the point.
-    fn solve(&self, mut views: Vec<TrackView>, rejected: Vec<(usize, usize)>) -> Option<Track> {
+    fn solve(&self, views: Vec<TrackView>, rejected: Vec<(usize, usize)>) -> Option<Track> {
+        self.solve_with(views, rejected, &|_, _| 0.0)
+    }
+
+    /// [`Self::solve`] with an allowance (px) added to the gate of each view at a point.
+    fn solve_with(
+        &self,
+        mut views: Vec<TrackView>,
+        rejected: Vec<(usize, usize)>,
+        allowance: &dyn Fn(&TrackView, &Point3<f64>) -> f64,
+    ) -> Option<Track> {
         views.sort_by_key(|v| v.frame);
         if views.windows(2).any(|w| w[0].frame == w[1].frame) {
             return None;
         }
+        let fit_all = |views: &[TrackView], point: &Point3<f64>| {
+            views
+                .iter()
+                .all(|v| self.fits_within(v, point, allowance(v, point)))
+        };
         let mut point = triangulate(&observations_of(&views, self.cameras, true))?;
-        if !views.iter().all(|v| self.fits(v, &point)) {
+        if !fit_all(&views, &point) {
             return None;
         }
         if self.config.correct_centres {
@@ -164,7 +260,7 @@ impl Context<'_> {
                 (v.corrected, v.partner) = c.map_or((None, None), |(c, p)| (Some(c), Some(p)));
             }
             point = triangulate(&observations_of(&views, self.cameras, true))?;
-            if !views.iter().all(|v| self.fits(v, &point)) {
+            if !fit_all(&views, &point) {
                 return None;
             }
         }
@@ -223,6 +319,39 @@ impl Context<'_> {
     }
 }
 
+/// Each live track's two nearest other live tracks `(distance, track)` by their points,
+/// nearest first (fewer when there are fewer tracks).
+fn two_nearest(tracks: &[Option<Track>]) -> Vec<Vec<(f64, usize)>> {
+    let live: Vec<(usize, Point3<f64>)> = tracks
+        .iter()
+        .enumerate()
+        .filter_map(|(t, track)| Some((t, track.as_ref()?.point)))
+        .collect();
+    let mut out = vec![Vec::new(); tracks.len()];
+    let found: Vec<(usize, Vec<(f64, usize)>)> = live
+        .par_iter()
+        .map(|&(t, x)| {
+            let mut best: Vec<(f64, usize)> = Vec::with_capacity(3);
+            for &(u, y) in &live {
+                if u == t {
+                    continue;
+                }
+                let d = (x - y).norm();
+                if best.len() < 2 || d < best[1].0 {
+                    best.push((d, u));
+                    best.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+                    best.truncate(2);
+                }
+            }
+            (t, best)
+        })
+        .collect();
+    for (t, best) in found {
+        out[t] = best;
+    }
+    out
+}
+
 /// Merges tracks that are one target (module docs, step 1); returns the number of merges.
 fn merge(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> usize {
     let owner = ctx.owners(tracks);
@@ -238,18 +367,39 @@ fn merge(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> usize {
                 .collect::<Vec<_>>()
         })
         .collect();
+    // And the pairs whose points are unambiguously one target, whatever their images say
+    // (their points may differ by more than the gate: [`Context::join_unambiguous`]).
+    let nearest = two_nearest(tracks);
+    for (t, near) in nearest.iter().enumerate() {
+        if let [(d, u), (second, _), ..] = near[..]
+            && d <= UNAMBIGUOUS_FRACTION * second
+        {
+            candidates.push((t.min(u), t.max(u)));
+        }
+    }
     candidates.sort_unstable();
     candidates.dedup();
-    let joined = |a: &Track, b: &Track| -> Option<Track> {
-        let views: Vec<TrackView> = a.views.iter().chain(&b.views).copied().collect();
-        let mut rejected = a.rejected.clone();
-        rejected.extend(b.rejected.iter().copied());
+    // The distance of `a` and `b` to their nearest other track.
+    let others = |a: usize, b: usize| {
+        let other = |t: usize, not: usize| {
+            nearest[t]
+                .iter()
+                .find(|(_, u)| *u != not)
+                .map_or(f64::INFINITY, |(d, _)| *d)
+        };
+        other(a, b).min(other(b, a))
+    };
+    let joined = |a: usize, b: usize, ta: &Track, tb: &Track| -> Option<Track> {
+        let views: Vec<TrackView> = ta.views.iter().chain(&tb.views).copied().collect();
+        let mut rejected = ta.rejected.clone();
+        rejected.extend(tb.rejected.iter().copied());
         ctx.solve(views, rejected)
+            .or_else(|| ctx.join_unambiguous(ta, tb, others(a, b)))
     };
     let mut scored: Vec<(f64, usize, usize)> = candidates
         .par_iter()
         .filter_map(|&(a, b)| {
-            let j = joined(tracks[a].as_ref()?, tracks[b].as_ref()?)?;
+            let j = joined(a, b, tracks[a].as_ref()?, tracks[b].as_ref()?)?;
             Some((j.rms_px, a, b))
         })
         .collect();
@@ -272,7 +422,7 @@ fn merge(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> usize {
         let (Some(ta), Some(tb)) = (&tracks[lo], &tracks[hi]) else {
             continue;
         };
-        let Some(j) = joined(ta, tb) else {
+        let Some(j) = joined(lo, hi, ta, tb) else {
             continue;
         };
         tracks[lo] = Some(j);
@@ -398,6 +548,11 @@ fn grow(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> (usize, usize) {
 /// Rounds of growth and merging at most (each round's claims can free the next's).
 const GROWTH_ROUNDS: usize = 4;
 
+/// Two tracks' points closer to each other than this fraction of their distance to any other
+/// track are one target ([`Context::join_unambiguous`]): two neighbouring targets of a grid
+/// mistaken for one would be a whole spacing apart (a ratio of about 1).
+const UNAMBIGUOUS_FRACTION: f64 = 0.25;
+
 /// One target, one track (module docs): merges, then grows and merges again until nothing is
 /// claimed. Returns the tracks (a
 /// merged track in place of its first part, the others in their order) and what changed.
@@ -467,6 +622,11 @@ mod tests {
     );
 
     fn grid_scene() -> Scene {
+        grid_scene_shifted(&|_, _| (0.0, 0.0))
+    }
+
+    /// [`grid_scene`] with dot `d`'s ellipse in frame `f` moved by `shift(f, d)` (px).
+    fn grid_scene_shifted(shift: &dyn Fn(usize, usize) -> (f64, f64)) -> Scene {
         let intrinsics = Intrinsics::pinhole(800.0, 320.0, 240.0);
         let dots: Vec<Vector3<f64>> = (0..5)
             .flat_map(|r| {
@@ -504,8 +664,9 @@ mod tests {
                 .filter_map(|(d, x)| {
                     let c = conic_of_circle(&cam.k(), &cam.cam_from_world, x, &normal, 0.01)?;
                     let mut e = Ellipse::from_conic(&c)?;
-                    e.cx += 0.05 * crate::sim::sfm::gaussian(&mut rng);
-                    e.cy += 0.05 * crate::sim::sfm::gaussian(&mut rng);
+                    let (du, dv) = shift(f, d);
+                    e.cx += du + 0.05 * crate::sim::sfm::gaussian(&mut rng);
+                    e.cy += dv + 0.05 * crate::sim::sfm::gaussian(&mut rng);
                     (e.cx > 10.0 && e.cy > 10.0 && e.cx < 630.0 && e.cy < 470.0).then_some((d, e))
                 })
                 .collect();
@@ -632,5 +793,58 @@ mod tests {
             })
             .collect();
         assert_eq!(sets, vec![a.clone(), b.clone()]);
+    }
+
+    /// One dot seen with a systematic offset in half of the frames (as a frame's pose error,
+    /// rolling shutter or a biased edge would put it): the two halves' tracks are each
+    /// consistent, their joint track is not within the gate, but their points are far closer
+    /// to each other than to any other dot. They become one track of that dot, and nothing of
+    /// another dot's views enters it.
+    #[test]
+    fn unambiguous_halves_of_one_dot_beyond_the_gate_become_one_track() {
+        let (cameras, obs, truth) = grid_scene_shifted(&|f, d| {
+            if d == 7 && f % 2 == 1 {
+                (0.9, -0.6)
+            } else {
+                (0.0, 0.0)
+            }
+        });
+        let views = &truth[7];
+        let even: Vec<(usize, usize)> = views.iter().copied().filter(|(f, _)| f % 2 == 0).collect();
+        let odd: Vec<(usize, usize)> = views.iter().copied().filter(|(f, _)| f % 2 == 1).collect();
+        assert!(even.len() >= 3 && odd.len() >= 3);
+        let mut input = vec![track(&even, &cameras, &obs), track(&odd, &cameras, &obs)];
+        for (d, v) in truth.iter().enumerate() {
+            if d != 7 {
+                input.push(track(v, &cameras, &obs));
+            }
+        }
+        let pairs = PairIndex::new(&[]);
+        let config = MatchConfig::default();
+        // Without the unambiguity rule the halves stay apart: their joint track does not fit.
+        let ctx_gate = {
+            let sigma = target_sigma(&input, &cameras).unwrap();
+            gate(&input, &cameras, sigma)
+        };
+        let joint: Vec<TrackView> = input[0]
+            .views
+            .iter()
+            .chain(&input[1].views)
+            .copied()
+            .collect();
+        let x = triangulate(&observations_of(&joint, &cameras, true)).unwrap();
+        let worst = joint
+            .iter()
+            .map(|v| (project(&cameras[v.frame], &x).unwrap() - v.best_centre()).norm())
+            .fold(0.0, f64::max);
+        assert!(worst > ctx_gate, "worst {worst} px, gate {ctx_gate} px");
+        let (out, c) = consolidate(input, &cameras, &obs, &pairs, (640, 480), &config);
+        assert_eq!(out.len(), truth.len(), "{c:?}");
+        for t in &out {
+            let mut v: Vec<(usize, usize)> = t.views.iter().map(|v| (v.frame, v.obs)).collect();
+            v.sort_unstable();
+            let dot = truth.iter().position(|tv| tv.contains(&v[0])).unwrap();
+            assert!(v.iter().all(|x| truth[dot].contains(x)), "dot {dot}: {v:?}");
+        }
     }
 }

@@ -3,6 +3,7 @@
 
 pub mod brown;
 pub mod convert;
+pub mod rolling;
 pub mod undistort_map;
 
 pub use brown::{BrownCamera, Intrinsics, Projection, Term, UndistortError, WorldProjection};

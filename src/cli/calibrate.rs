@@ -15,14 +15,16 @@ use pipemeasure::calibrate::checks::{
     projection_difference_rotated, projection_uncertainty,
 };
 use pipemeasure::calibrate::network::colmap_network;
-use pipemeasure::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, calibrate};
+use pipemeasure::calibrate::pipeline::{
+    CalibrateConfig, Calibration, CalibrationInput, NeighbourDetections, ReadoutStart, calibrate,
+};
 use pipemeasure::camera::Term;
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::colmap::{ModelFormat, Reconstruction, run_colmap_sfm};
 use pipemeasure::profile::{
-    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, StdDev,
+    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, ReadoutTime, StdDev,
 };
 use pipemeasure::report::plots;
 use serde::Serialize;
@@ -78,6 +80,26 @@ pub struct Args {
     /// σ per axis of the check points (m), for the predicted RMS.
     #[arg(long, default_value_t = 0.0)]
     check_point_sigma: f64,
+    /// The rolling-shutter model (a motion per frame and the readout time): `auto` lets the
+    /// term selection keep it when the frames show it (significant and lowering the BIC),
+    /// `off` leaves it out (a global-shutter camera).
+    #[arg(long, value_enum, default_value_t = RollingShutterMode::Auto)]
+    rolling_shutter: RollingShutterMode,
+    /// The readout time (ms), when known (a device's data sheet, an earlier calibration): held
+    /// at this value. Without it the readout time is estimated from the frames' neighbours in
+    /// the video listed in `FRAMES/frames.json`, or held at 25 ms when there are none (the
+    /// camera is then still right: only readout × velocity shows in one frame).
+    #[arg(long, value_name = "MS")]
+    readout_time: Option<f64>,
+}
+
+/// `--rolling-shutter`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum RollingShutterMode {
+    /// Tried by the term selection, kept when significant.
+    Auto,
+    /// Left out.
+    Off,
 }
 
 /// The SfM model: the given one, or COLMAP's.
@@ -126,6 +148,55 @@ fn image_size(model: &Reconstruction) -> Result<(u32, u32)> {
         u32::try_from(first.0).context("camera width")?,
         u32::try_from(first.1).context("camera height")?,
     ))
+}
+
+/// The detections in the frames' neighbours in the video, from `FRAMES/frames.json` when
+/// there is one (empty otherwise, or with `--rolling-shutter off` or a held readout time,
+/// which do not use them).
+fn neighbour_detections(
+    args: &Args,
+    names: &[String],
+    quiet: bool,
+) -> Result<Vec<Vec<NeighbourDetections>>> {
+    let path = args.frames.join("frames.json");
+    if !path.is_file()
+        || args.rolling_shutter == RollingShutterMode::Off
+        || args.readout_time.is_some()
+    {
+        return Ok(Vec::new());
+    }
+    let sidecar = pipemeasure::io::sidecar::FramesSidecar::read(&path)?;
+    let lists: Vec<&[pipemeasure::io::sidecar::NeighbourEntry]> =
+        names.iter().map(|n| sidecar.neighbours_of(n)).collect();
+    let flat: Vec<String> = lists
+        .iter()
+        .flat_map(|l| l.iter().map(|n| n.name.clone()))
+        .collect();
+    if flat.is_empty() {
+        return Ok(Vec::new());
+    }
+    if let Some(missing) = flat.iter().find(|n| !args.frames.join(n).is_file()) {
+        bail!(
+            "{}: neighbour frame {missing} is not in {}",
+            path.display(),
+            args.frames.display()
+        );
+    }
+    let mut detected = detect_named_frames(&args.frames, &flat, args.min_semi_minor, quiet)
+        .context("detecting the targets of the frames' neighbours")?
+        .into_iter();
+    Ok(lists
+        .iter()
+        .map(|l| {
+            l.iter()
+                .zip(detected.by_ref())
+                .map(|(n, ellipses)| NeighbourDetections {
+                    dt_s: n.dt_s,
+                    ellipses,
+                })
+                .collect()
+        })
+        .collect())
 }
 
 /// Every model image must be a file in the frames folder.
@@ -180,6 +251,8 @@ struct ReportJson<'a> {
     iterations: &'a [pipemeasure::calibrate::pipeline::LoopRecord],
     converged: bool,
     stop_reason: &'a str,
+    /// The selection's alternation between two term sets and how the loop settled it.
+    term_alternation: Option<&'a pipemeasure::calibrate::pipeline::TermAlternation>,
     /// Frames (by name) in the final adjustment; the others saw too few targets.
     adjusted_frames: Vec<&'a str>,
     redundancy: usize,
@@ -262,6 +335,11 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
         images: cal.frame_names.len(),
         targets: cal.points.len(),
         observations: cal.observations.len(),
+        rolling_shutter: cal.rolling_shutter.as_ref().map(|r| ReadoutTime {
+            readout_s: r.readout_s,
+            readout_std_s: r.readout_std_s,
+            estimated: r.estimated,
+        }),
         provenance,
     }
 }
@@ -286,7 +364,7 @@ fn high_correlations(profile: &Profile) -> Vec<(String, String, f64)> {
 
 fn calibrate_model(
     model: &Reconstruction,
-    detections: &[Vec<Ellipse>],
+    (detections, neighbours): (&[Vec<Ellipse>], &[Vec<NeighbourDetections>]),
     size: (u32, u32),
     config: &CalibrateConfig,
     log: &dyn Fn(&str),
@@ -295,6 +373,7 @@ fn calibrate_model(
         model,
         detections,
         image_size: size,
+        neighbours,
     };
     Ok(calibrate(&input, config, log)?)
 }
@@ -406,6 +485,19 @@ fn write_report(
             " (not converged)"
         }
     );
+    if let Some(a) = &cal.term_alternation {
+        md += &format!(
+            "At iteration {} the term selection alternated between {} (BIC {:.1}) and {} (BIC {:.1}); {} was kept (lower BIC) for the rest of the loop. The two cameras differ by {:.4} px at most over the frame ({:.2} × the projection σ).\n\n",
+            a.iteration,
+            a.sets[0],
+            a.bic[0],
+            a.sets[1],
+            a.bic[1],
+            a.kept,
+            a.camera_difference_px,
+            a.camera_difference_ratio
+        );
+    }
     if cal.adjusted_frames.len() < cal.frame_names.len() {
         md += &format!(
             "{} of the {} frames saw too few matched targets to enter the adjustment.\n\n",
@@ -485,6 +577,11 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     if !args.frames.is_dir() {
         bail!("--frames {}: not a folder", args.frames.display());
     }
+    if let Some(ms) = args.readout_time
+        && !(ms.is_finite() && ms > 0.0 && ms <= 100.0)
+    {
+        bail!("--readout-time {ms}: must be a time in ms between 0 and 100");
+    }
     if !(args.check_point_sigma.is_finite() && args.check_point_sigma >= 0.0) {
         bail!(
             "--check-point-sigma {}: must be a number ≥ 0 (m)",
@@ -522,8 +619,17 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let names = check_frames(&model, &args.frames)?;
     let size = image_size(&model)?;
     let detections = detect_named_frames(&args.frames, &names, args.min_semi_minor, globals.quiet)?;
+    let neighbours = neighbour_detections(args, &names, globals.quiet)?;
     let config = CalibrateConfig {
         max_iterations: args.max_iterations,
+        rolling_shutter: match (args.rolling_shutter, args.readout_time) {
+            (RollingShutterMode::Off, _) => None,
+            (RollingShutterMode::Auto, None) => Some(ReadoutStart::default()),
+            (RollingShutterMode::Auto, Some(ms)) => Some(ReadoutStart {
+                readout_s: ms * 1e-3,
+                hold: true,
+            }),
+        },
         ..CalibrateConfig::default()
     };
     let quiet = globals.quiet;
@@ -532,7 +638,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             eprintln!("{m}");
         }
     };
-    let cal = calibrate_model(&model, &detections, size, &config, &log)?;
+    let cal = calibrate_model(&model, (&detections, &neighbours), size, &config, &log)?;
     let check = check_distortion(&cal.intrinsics, size);
     let mut warnings = cal.warnings.clone();
     if !check.ok {
@@ -558,13 +664,19 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
                 .filter(|(_, k)| **k)
                 .map(|(d, _)| d.clone())
                 .collect();
+            let nb: Vec<Vec<NeighbourDetections>> = neighbours
+                .iter()
+                .zip(keep)
+                .filter(|(_, k)| **k)
+                .map(|(d, _)| d.clone())
+                .collect();
             log(&format!(
                 "cross-validation: half {} ({} frames)",
                 h + 1,
                 det.len()
             ));
             models.push(
-                calibrate_model(&sub, &det, size, &config, &log)
+                calibrate_model(&sub, (&det, &nb), size, &config, &log)
                     .with_context(|| format!("cross-validation half {}", h + 1))?,
             );
         }
@@ -649,6 +761,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             iterations: &cal.iterations,
             converged: cal.converged,
             stop_reason: &cal.stop_reason,
+            term_alternation: cal.term_alternation.as_ref(),
             adjusted_frames: cal
                 .adjusted_frames
                 .iter()

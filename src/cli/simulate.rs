@@ -7,8 +7,11 @@ use pipemeasure::sim::devices::preset;
 use pipemeasure::sim::lab::LabConfig;
 use pipemeasure::sim::render::RenderConfig;
 use pipemeasure::sim::simulate::{
-    SfmSource, SimulateOptions, SiteOptions, simulate_lab, simulate_site,
+    SfmSource, SimulateOptions, SiteOptions, frames_to_render, simulate_lab, simulate_site,
 };
+use pipemeasure::sim::trajectory::MotionConfig;
+use pipemeasure::sim::truth::Truth;
+use pipemeasure::sim::video::{VideoConfig, speeds};
 
 use super::Globals;
 use super::progress::bar;
@@ -68,6 +71,108 @@ pub struct Common {
     /// Replace an existing simulation in the output folder.
     #[arg(long)]
     force: bool,
+    #[command(flatten)]
+    video: VideoArgs,
+}
+
+/// Video options (`--video` and the options that need it).
+#[derive(Debug, clap::Args)]
+pub struct VideoArgs {
+    /// Film a hand-held phone video instead of still frames: a continuous trajectory through
+    /// the stations, rolling shutter, motion blur; the frames are its 1 fps extraction.
+    #[arg(long)]
+    video: bool,
+    /// Rolling-shutter readout time in ms (default: the preset's, 20/25/30 ms; 0 = global
+    /// shutter).
+    #[arg(long, value_name = "MS", requires = "video", value_parser = parse_ms)]
+    readout: Option<f64>,
+    /// Exposure time in ms (0 = no motion blur).
+    #[arg(long, value_name = "MS", requires = "video", default_value = "8", value_parser = parse_ms)]
+    exposure: f64,
+    /// Range of the angular speed at the extracted frames, °/s.
+    #[arg(long, value_name = "MIN,MAX", requires = "video", default_value = "3,9", value_parser = parse_range)]
+    angular_speed: [f64; 2],
+    /// Range of the camera's speed at the extracted frames, m/s.
+    #[arg(long, value_name = "MIN,MAX", requires = "video", default_value = "0.05,0.15", value_parser = parse_range)]
+    linear_speed: [f64; 2],
+    /// RMS angular rate of the hand tremor, °/s (0 = none).
+    #[arg(long, value_name = "DEG_S", requires = "video", default_value_t = 0.5, value_parser = parse_non_negative)]
+    tremor: f64,
+    /// Length of the pause between two extracted frames, s (0 = none).
+    #[arg(long, value_name = "S", requires = "video", default_value_t = 0.2, value_parser = parse_non_negative)]
+    pause: f64,
+    /// Autofocus on: the principal distance follows the focus distance (the preset's lens).
+    #[arg(long, requires = "video")]
+    focus_breathing: bool,
+    /// Also render each extracted frame's two neighbours in the video (t ± 1/fps) into
+    /// frames/neighbours/, listed in frames/frames.json.
+    #[arg(long, requires = "video")]
+    neighbours: bool,
+    /// Video frame rate; given, also renders the full-rate video at --video-width into
+    /// video/frame_%05d.png with video/motion.json (and video.mp4 when ffmpeg is installed).
+    #[arg(long, value_name = "N", requires = "video", value_parser = parse_fps)]
+    fps: Option<f64>,
+    /// Width of the full-rate video (px).
+    #[arg(long, value_name = "W", requires = "fps", default_value_t = 320)]
+    video_width: u32,
+}
+
+/// Parses a duration in milliseconds into seconds.
+fn parse_ms(s: &str) -> Result<f64, String> {
+    let ms = parse_non_negative(s)?;
+    if ms > 1000.0 {
+        return Err(format!("`{s}`: at most 1000 ms"));
+    }
+    Ok(ms / 1000.0)
+}
+
+/// Parses a finite number ≥ 0.
+fn parse_non_negative(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        Ok(_) => Err(format!("`{s}`: must be a finite number ≥ 0")),
+        Err(e) => Err(format!("`{s}`: {e}")),
+    }
+}
+
+/// Parses a frame rate between 1 and 240.
+fn parse_fps(s: &str) -> Result<f64, String> {
+    let v = parse_non_negative(s)?;
+    if !(1.0..=240.0).contains(&v) {
+        return Err(format!("`{s}`: must be between 1 and 240 frames/s"));
+    }
+    Ok(v)
+}
+
+/// Parses `MIN,MAX` with 0 ≤ MIN ≤ MAX.
+fn parse_range(s: &str) -> Result<[f64; 2], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(parse_non_negative)
+        .collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [lo, hi] if lo <= hi => Ok([*lo, *hi]),
+        [_, _] => Err(format!("`{s}`: MIN must not exceed MAX")),
+        _ => Err(format!("`{s}`: expected MIN,MAX")),
+    }
+}
+
+fn video_config(v: &VideoArgs) -> Option<VideoConfig> {
+    v.video.then(|| VideoConfig {
+        motion: MotionConfig {
+            angular_speed_deg_s: v.angular_speed,
+            linear_speed_m_s: v.linear_speed,
+            tremor_deg_s: v.tremor,
+            pause_s: v.pause,
+        },
+        readout_s: v.readout,
+        exposure_s: v.exposure,
+        frame_rate: v.fps.unwrap_or(30.0),
+        focus_breathing: v.focus_breathing,
+        neighbours: v.neighbours,
+        full_rate_width: v.fps.map(|_| v.video_width),
+        ..VideoConfig::default()
+    })
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -154,8 +259,76 @@ fn options(c: &Common) -> Result<SimulateOptions> {
             SfmArg::Colmap => SfmSource::Colmap,
         },
         command: std::env::args().collect::<Vec<_>>().join(" "),
+        video: video_config(&c.video),
         ..SimulateOptions::default()
     })
+}
+
+/// Video options the library refuses (they depend on each other: an exposure longer than a
+/// frame at --fps, a pause too long for the interval) are usage errors: clap prints them with
+/// the usage line and exits with code 2.
+fn check_video(opts: &SimulateOptions) {
+    if let Some(Err(e)) = opts.video.as_ref().map(VideoConfig::validate) {
+        use clap::CommandFactory;
+        super::Cli::command()
+            .error(clap::error::ErrorKind::ValueValidation, e.to_string())
+            .exit();
+    }
+}
+
+/// What the video added, for the summary line.
+fn video_summary(truth: &Truth) -> String {
+    let Some(v) = &truth.video else {
+        return String::new();
+    };
+    let speeds: Vec<(f64, f64)> = truth
+        .frames
+        .iter()
+        .filter_map(|f| f.motion.as_ref().map(speeds))
+        .collect();
+    let n = speeds.len().max(1) as f64;
+    let mut text = format!(
+        "\nvideo: readout {:.1} ms, exposure {:.1} ms, at the frames {:.1} °/s and {:.3} m/s on average{}{}",
+        v.readout_s * 1e3,
+        v.exposure_s * 1e3,
+        speeds.iter().map(|s| s.0).sum::<f64>() / n,
+        speeds.iter().map(|s| s.1).sum::<f64>() / n,
+        if v.focus_breathing_m > 0.0 {
+            ", focus breathing"
+        } else {
+            ""
+        },
+        if truth.frames.iter().any(|f| !f.neighbours.is_empty()) {
+            ", neighbours in frames/neighbours"
+        } else {
+            ""
+        },
+    );
+    if let Some(full) = &v.full_rate {
+        text += &format!(
+            "\nfull-rate video: {} frames {}x{} at {} fps in video/{}",
+            full.frames,
+            full.width,
+            full.height,
+            v.frame_rate,
+            full.mp4
+                .as_deref()
+                .map_or(String::new(), |m| format!(", {m}")),
+        );
+    }
+    text
+}
+
+/// Warns on stderr when the full-rate video could not be encoded.
+fn warn_encoding(truth: &Truth) {
+    if let Some(note) = truth
+        .video
+        .as_ref()
+        .and_then(|v| v.full_rate.as_ref())
+        .and_then(|f| f.note.as_ref())
+    {
+        eprintln!("warning: no video.mp4: {note}");
+    }
 }
 
 fn check_out(c: &Common) -> Result<()> {
@@ -179,15 +352,18 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
                 floor: !args.no_floor,
                 ..LabConfig::default()
             };
-            let progress = bar(args.frames as u64, "rendering", globals.quiet);
+            check_video(&opts);
+            let total = frames_to_render(&opts, args.frames).unwrap_or(args.frames);
+            let progress = bar(total as u64, "rendering", globals.quiet);
             let truth = simulate_lab(&opts, &lab, &args.common.out, &|done| {
                 progress.set_position(done as u64)
             })
             .with_context(|| format!("simulating a lab into {}", args.common.out.display()))?;
             progress.finish_and_clear();
+            warn_encoding(&truth);
             let visible: usize = truth.frames.iter().map(|f| f.targets.len()).sum();
             outln!(
-                "simulated lab: {} frames {}x{} ({}), {} targets, {:.1} visible per frame, sparse model: {} ({} points)\nwritten to {}",
+                "simulated lab: {} frames {}x{} ({}), {} targets, {:.1} visible per frame, sparse model: {} ({} points){}\nwritten to {}",
                 truth.frames.len(),
                 truth.camera.width,
                 truth.camera.height,
@@ -196,6 +372,7 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
                 visible as f64 / truth.frames.len() as f64,
                 truth.sfm.as_ref().map_or("none", |s| s.source.as_str()),
                 truth.sfm.as_ref().map_or(0, |s| s.points),
+                video_summary(&truth),
                 args.common.out.display()
             );
         }
@@ -209,16 +386,19 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             if let Some(o) = args.tls_offset {
                 site.tls.offset = o;
             }
-            let progress = bar(args.frames as u64, "rendering", globals.quiet);
+            check_video(&opts);
+            let total = frames_to_render(&opts, args.frames).unwrap_or(args.frames);
+            let progress = bar(total as u64, "rendering", globals.quiet);
             let truth = simulate_site(&opts, &site, &args.common.out, &|done| {
                 progress.set_position(done as u64)
             })
             .with_context(|| format!("simulating a site into {}", args.common.out.display()))?;
             progress.finish_and_clear();
+            warn_encoding(&truth);
             let pipe = truth.pipes.iter().find(|p| p.of_interest);
             let dense = truth.dense.as_ref();
             outln!(
-                "simulated site: {} frames {}x{} ({}), {} targets, pipe of interest {} (r = {:.2} mm)\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points\nwritten to {}",
+                "simulated site: {} frames {}x{} ({}), {} targets, pipe of interest {} (r = {:.2} mm)\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points{}\nwritten to {}",
                 truth.frames.len(),
                 truth.camera.width,
                 truth.camera.height,
@@ -230,6 +410,7 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
                 dense.map_or(0, |d| d.observations),
                 dense.map_or(0, |d| d.fused_points),
                 truth.tls.as_ref().map_or(0, |t| t.points),
+                video_summary(&truth),
                 args.common.out.display()
             );
         }

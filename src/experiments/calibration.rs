@@ -69,6 +69,7 @@ pub fn run(
         model: &s.model,
         detections: &s.detections,
         image_size: (s.truth.camera.width, s.truth.camera.height),
+        neighbours: &[],
     };
     calibrate(&input, config, log).map_err(|e| e.to_string())
 }
@@ -215,6 +216,7 @@ pub fn truth_target_problem(truth: &Truth, noise_px: f64, seed: u64) -> Problem<
                 uv: Vector2::new(t.centre_px[0], t.centre_px[1])
                     + noise_px * Vector2::new(gaussian(&mut rng), gaussian(&mut rng)),
                 weight: 1.0,
+                time_offset_s: 0.0,
             });
         }
     }
@@ -233,7 +235,7 @@ pub fn truth_target_problem(truth: &Truth, noise_px: f64, seed: u64) -> Problem<
     let t = truth.camera.intrinsics;
     let start = Intrinsics::pinhole(t.c * 1.01, t.u0 + 5.0, t.v0 - 5.0);
     let mut problem = Problem {
-        model: BrownModel,
+        model: BrownModel::GLOBAL_SHUTTER,
         cam_from_world: truth.frames.iter().map(|f| f.cam_from_world()).collect(),
         local: Vec::new(),
         global: start.to_array().to_vec(),

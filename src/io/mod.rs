@@ -12,6 +12,7 @@ pub mod error;
 pub mod frames;
 pub mod observations;
 pub mod ply;
+pub mod sidecar;
 pub mod tls;
 pub mod vis;
 

@@ -6,7 +6,9 @@
 //!   the wall and floor near the pipes more sparsely — and observed in every frame that sees
 //!   them (in front, inside, facing, unoccluded), keeping at most 8 frames spread over the
 //!   sequence, each observation with Gaussian pixel noise (σ = 0.3 px by default: dense
-//!   matching precision). Points seen in fewer than 3 frames are dropped.
+//!   matching precision). Points seen in fewer than 3 frames are dropped. In a video
+//!   ([`super::video`]) each point is seen in its own row of the rolling-shutter frame
+//!   ([`dense_observations_with`]).
 //! * `fused.ply` is each point triangulated from its noisy observations through the SfM
 //!   model's own camera at its poses, in the SfM frame, as COLMAP's dense reconstruction does
 //!   (through the true camera for the perturbed-truth stand-in, whose camera was never
@@ -143,6 +145,32 @@ pub fn dense_observations(
     config: &DenseConfig,
     seed: u64,
 ) -> DenseObservations {
+    dense_observations_with(
+        scene,
+        camera,
+        &|f, p, n| observe(scene, camera, &poses[f], p, n),
+        frame_names,
+        config,
+        seed,
+    )
+}
+
+/// How a frame sees a surface point: `observe(frame, point, normal)`, its pixel or `None`.
+pub type Observer<'a> =
+    dyn Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + 'a;
+
+/// [`dense_observations`] with the pixel of surface point `p` (normal `n`) in frame `f` given
+/// by `observe(f, p, n)` (`None` when not seen): a moving rolling-shutter camera's
+/// ([`super::video`]) sees each point in its own row.
+#[must_use]
+pub fn dense_observations_with(
+    scene: &Scene,
+    camera: &BrownCamera,
+    observe: &Observer<'_>,
+    frame_names: &[String],
+    config: &DenseConfig,
+    seed: u64,
+) -> DenseObservations {
     let scale = 3840.0 / f64::from(camera.width);
     let samples = surface_samples(
         scene,
@@ -153,10 +181,8 @@ pub fn dense_observations(
         .par_iter()
         .enumerate()
         .filter_map(|(k, (p, n, label))| {
-            let seen: Vec<(usize, Vector2<f64>)> = poses
-                .iter()
-                .enumerate()
-                .filter_map(|(f, pose)| observe(scene, camera, pose, p, n).map(|uv| (f, uv)))
+            let seen: Vec<(usize, Vector2<f64>)> = (0..frame_names.len())
+                .filter_map(|f| observe(f, p, n).map(|uv| (f, uv)))
                 .collect();
             if seen.len() < config.min_views {
                 return None;

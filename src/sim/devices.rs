@@ -21,6 +21,27 @@ pub struct DevicePreset {
     pub label: &'static str,
     /// Its true camera at 3840×2160.
     pub camera: BrownCamera,
+    /// Rolling-shutter readout time of its 4K video (s): from the middle of the top row's
+    /// exposure to the bottom row's (phones read 4K30 out in 15–33 ms).
+    pub readout_s: f64,
+    /// Focus breathing β (m): with autofocus on, the principal distance follows the focus
+    /// distance d as `c(d) = c·(1 + β·(1/d − 1/FOCUS_REFERENCE_M))`. A lens focused at d sits
+    /// f·d/(d − f) ≈ f·(1 + f/d) from the sensor (thin lens), so β is about the lens's physical
+    /// focal length.
+    pub focus_breathing_m: f64,
+}
+
+/// Default exposure of the simulated video (s): 1/125 s, a bright indoor scene.
+pub const DEFAULT_EXPOSURE_S: f64 = 0.008;
+/// Focus distance at which a preset's principal distance is its nominal `c` (m): about the
+/// lab's and the site's viewing distance.
+pub const FOCUS_REFERENCE_M: f64 = 2.5;
+
+/// The factor multiplying c (and b1, b2) when a camera of focus breathing `beta_m` is focused
+/// at `distance_m` ([`DevicePreset::focus_breathing_m`]).
+#[must_use]
+pub fn breathing_factor(beta_m: f64, distance_m: f64) -> f64 {
+    1.0 + beta_m * (1.0 / distance_m - 1.0 / FOCUS_REFERENCE_M)
 }
 
 /// Huawei P30: moderate barrel-to-pincushion residual (k1, k2) and decentring.
@@ -43,6 +64,9 @@ pub const P30: DevicePreset = DevicePreset {
             b2: 0.0,
         },
     },
+    readout_s: 0.020,
+    // Main camera 5.56 mm (27 mm equivalent).
+    focus_breathing_m: 0.0056,
 };
 
 /// iPhone 11: wider lens, opposite-sign radial residual and very small decentring.
@@ -65,6 +89,9 @@ pub const IPHONE11: DevicePreset = DevicePreset {
             b2: 0.0,
         },
     },
+    readout_s: 0.025,
+    // Main camera 4.25 mm (26 mm equivalent).
+    focus_breathing_m: 0.00425,
 };
 
 /// Samsung S10: longer principal distance and a third radial term.
@@ -87,6 +114,9 @@ pub const S10: DevicePreset = DevicePreset {
             b2: 0.0,
         },
     },
+    readout_s: 0.030,
+    // Main camera 4.3 mm (26 mm equivalent).
+    focus_breathing_m: 0.0043,
 };
 
 /// Every preset.
@@ -140,6 +170,14 @@ mod tests {
             );
         }
         assert_ne!(P30.camera, S10.camera);
+        // Readout 20–30 ms (the video labs); breathing of a 4–6 mm lens: focusing from
+        // 2.5 m to 1 m lengthens c by 0.26–0.34 %.
+        assert_eq!(PRESETS.map(|p| p.readout_s), [0.020, 0.025, 0.030]);
+        for p in PRESETS {
+            let f = breathing_factor(p.focus_breathing_m, 1.0);
+            assert!((1.0025..=1.0035).contains(&f), "{}: {f}", p.name);
+        }
+        assert_eq!(breathing_factor(0.005, FOCUS_REFERENCE_M), 1.0);
         assert_eq!(preset("s10"), Some(S10));
         assert_eq!(preset("nokia"), None);
     }

@@ -1,6 +1,10 @@
 //! The simulator (layer 5): the paper's calibration lab and pipe site with exact ground truth.
 //! It may use value types, I/O and profiles, never the algorithms it judges (`detect`,
 //! `robust`, `calibrate`, `adjust`, `measure`), so that its truth stays independent.
+//!
+//! Frames are still, global-shutter photographs at the scenes' stations by default; with video
+//! options ([`video`]) the stations become a continuous hand-held [`trajectory`] filmed by a
+//! rolling-shutter camera with motion blur ([`shutter`], [`render::render_radiance_moving`]).
 
 pub mod bundle;
 pub mod dense;
@@ -9,7 +13,10 @@ pub mod lab;
 pub mod render;
 pub mod scene;
 pub mod sfm;
+pub mod shutter;
 pub mod simulate;
 pub mod site;
 pub mod texture;
+pub mod trajectory;
 pub mod truth;
+pub mod video;

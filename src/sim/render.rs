@@ -14,6 +14,11 @@
 //! `samples × samples` stratified rays. An edge can slip past the five probes only by bulging
 //! into a pixel through one side and out again: for a disc of radius R px the missed area is at
 //! most the sagitta 1/(8R) times the chord, under 2 % of a pixel for R ≥ 5 px.
+//!
+//! Video frames ([`render_radiance_moving`]): every sample is taken through the pose of a
+//! moving camera at its row's time within the exposure (rolling shutter, motion blur), with the
+//! adaptive rule widened by the blur's displacement; without motion it is the still renderer
+//! bit for bit.
 
 use image::{DynamicImage, RgbImage};
 use nalgebra::{Point3, Vector2, Vector3};
@@ -23,6 +28,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::scene::Scene;
+use super::shutter::{PoseTable, Shutter};
 use crate::camera::BrownCamera;
 use crate::geometry::Rigid3;
 use crate::geometry::pose::camera_centre;
@@ -293,6 +299,308 @@ pub fn render_radiance(
     out
 }
 
+/// A frame of a moving camera: what [`render_radiance_moving`] needs besides the scene.
+#[derive(Clone, Copy, Debug)]
+pub struct MovingView<'a> {
+    /// The frame's true camera (under focus breathing, its principal distance for this
+    /// frame).
+    pub camera: &'a BrownCamera,
+    /// Pixel → ray grid of a camera equal to `camera` but with c, b1 and b2 multiplied by
+    /// `ray_scale` (one grid serves every frame of a breathing sequence).
+    pub rays: &'a RayGrid,
+    /// See `rays`; exactly 1 when the grid is `camera`'s own.
+    pub ray_scale: f64,
+    /// The camera's poses over the frame's exposure.
+    pub poses: &'a PoseTable,
+    /// Row timing: rolling-shutter readout and exposure.
+    pub shutter: Shutter,
+}
+
+impl MovingView<'_> {
+    /// Ideal normalised coordinates of pixel position (u, v) of `camera`: the pixel offsets
+    /// from the principal point scale with c (and b1, b2), the normalised distortion does not.
+    fn ideal(&self, u: f64, v: f64) -> Vector2<f64> {
+        if self.ray_scale == 1.0 {
+            return self.rays.ideal(u, v);
+        }
+        let i = &self.camera.intrinsics;
+        self.rays.ideal(
+            i.u0 + (u - i.u0) * self.ray_scale,
+            i.v0 + (v - i.v0) * self.ray_scale,
+        )
+    }
+
+    /// The ray (origin, direction in the world) of pixel position (u, v) at time t.
+    fn ray(&self, u: f64, v: f64, t: f64) -> (Point3<f64>, Vector3<f64>) {
+        let xy = self.ideal(u, v);
+        let (origin, world_from_cam) = self.poses.at(t);
+        (origin, world_from_cam * Vector3::new(xy.x, xy.y, 1.0))
+    }
+}
+
+/// Spacing of the nodes where the moving renderer measures the motion blur's displacement
+/// (px).
+const DISPLACEMENT_GRID_PX: usize = 32;
+/// Region id marking a pixel whose probes disagree (never a scene region: those are built
+/// from small surface and target indices).
+const NOT_UNIFORM: u64 = u64::MAX;
+
+/// A SplitMix64 stream (Steele, Lea & Flood, "Fast splittable pseudorandom number
+/// generators", OOPSLA 2014): per-pixel sample jitter without seeding a ChaCha generator.
+struct SplitMix(u64);
+
+impl SplitMix {
+    fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [0, 1).
+    fn next_f64(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+    }
+}
+
+/// Renders the noise-free radiance image of a moving rolling-shutter camera, row-major.
+///
+/// Every sample at pixel position (u, v) is taken at its row's time `t(v)` (see
+/// [`super::shutter`]) plus an offset within the exposure, through the pose at that time. The
+/// adaptive rule of [`render_radiance`] is kept correct under motion blur:
+///
+/// 1. the five probes of each pixel are taken at the middle of its rows' exposures;
+/// 2. on a grid of nodes every 32 px, the scene point seen at mid-exposure is projected at the
+///    start and the end of the exposure: the blur displacement `d` (px), interpolated
+///    bilinearly between nodes;
+/// 3. a pixel is smooth only when every pixel within `⌈max|d_u|/2⌉ + 1` columns and
+///    `⌈max|d_v|/2⌉ + 1` rows of it (the largest displacements of the four surrounding nodes
+///    along u and v, plus the interpolation's support) has uniform probes of the same region:
+///    no edge reaches it during the exposure. Its value is the mid-exposure image averaged
+///    along the segment `±d/2`, sampled at most 1 px apart (the motion blur of a smooth
+///    region, to first order in the exposure); with no exposure it is exactly the five-probe
+///    value;
+/// 4. every other pixel — an edge is in it at some time of the exposure — takes
+///    `samples × samples` rays at the stratified positions of [`render_radiance`], each at a
+///    time from its own stratum of the exposure (the strata shuffled per pixel, jittered
+///    within; seeded by `(seed, frame, pixel)`).
+///
+/// With a fixed pose table and no readout or exposure the output is bit for bit that of
+/// [`render_radiance`].
+#[must_use]
+pub fn render_radiance_moving(
+    scene: &Scene,
+    view: &MovingView<'_>,
+    config: &RenderConfig,
+    seed: u64,
+    frame: u64,
+) -> Vec<f32> {
+    let camera = view.camera;
+    let (w, h) = (camera.width as usize, camera.height as usize);
+    let shutter = view.shutter;
+    let row_time = |v: f64| shutter.row_time(v, camera.height);
+    // 1. Mid-exposure probes: the five-probe value and the region of uniform pixels.
+    let mut base = vec![0f32; w * h];
+    let mut ids = vec![NOT_UNIFORM; w * h];
+    if config.adaptive {
+        base.par_chunks_mut(w * BAND_ROWS)
+            .zip(ids.par_chunks_mut(w * BAND_ROWS))
+            .enumerate()
+            .for_each(|(band, (rows, row_ids))| {
+                let row0 = band * BAND_ROWS;
+                let nrows = rows.len() / w;
+                let probe_row = |v: f64, offset: f64, count: usize| {
+                    let (origin, world_from_cam) = view.poses.at(row_time(v));
+                    (0..count)
+                        .map(|c| {
+                            let xy = view.ideal(c as f64 + offset, v);
+                            let dir = world_from_cam * Vector3::new(xy.x, xy.y, 1.0);
+                            let (l, region) = scene.radiance(&origin, &dir);
+                            (l as f32, region)
+                        })
+                        .collect::<Vec<_>>()
+                };
+                let corners: Vec<Vec<(f32, u64)>> = (0..=nrows)
+                    .map(|r| probe_row((row0 + r) as f64, 0.0, w + 1))
+                    .collect();
+                let centres: Vec<Vec<(f32, u64)>> = (0..nrows)
+                    .map(|r| probe_row((row0 + r) as f64 + 0.5, 0.5, w))
+                    .collect();
+                for r in 0..nrows {
+                    for c in 0..w {
+                        let corner = |dr: usize, dc: usize| corners[r + dr][c + dc];
+                        let (centre, region) = centres[r][c];
+                        if [corner(0, 0), corner(0, 1), corner(1, 0), corner(1, 1)]
+                            .iter()
+                            .all(|p| p.1 == region)
+                        {
+                            rows[r * w + c] =
+                                (corner(0, 0).0 + corner(0, 1).0 + corner(1, 0).0 + corner(1, 1).0)
+                                    / 8.0
+                                    + centre / 2.0;
+                            row_ids[r * w + c] = region;
+                        }
+                    }
+                }
+            });
+    }
+    // 2. Blur displacement over the exposure at grid nodes.
+    let g = DISPLACEMENT_GRID_PX;
+    let (gx, gy) = (w.div_ceil(g) + 1, h.div_ceil(g) + 1);
+    let node = |i: usize, j: usize| ((i * g).min(w) as f64, (j * g).min(h) as f64);
+    let displacement: Vec<Vector2<f64>> = if shutter.exposure_s > 0.0 {
+        (0..gx * gy)
+            .into_par_iter()
+            .map(|k| {
+                let (u, v) = node(k % gx, k / gx);
+                let t = row_time(v);
+                let (origin, dir) = view.ray(u, v, t);
+                let depth = scene.intersect(&origin, &dir).map_or(1e3, |hit| hit.t);
+                let p = origin + dir * depth;
+                let at = |dt: f64| {
+                    let (o, world_from_cam) = view.poses.at(t + dt);
+                    camera
+                        .intrinsics
+                        .project(&(world_from_cam.inverse() * (p - o)))
+                };
+                match (at(-shutter.exposure_s / 2.0), at(shutter.exposure_s / 2.0)) {
+                    (Some(a), Some(b)) => b - a,
+                    // Behind the camera at one end: treat as an edge everywhere around.
+                    _ => Vector2::new(f64::from(u16::MAX), 0.0),
+                }
+            })
+            .collect()
+    } else {
+        vec![Vector2::zeros(); gx * gy]
+    };
+    // Runs of equal regions along each row, for the neighbourhood test of step 3.
+    let mut runs = vec![(0u16, 0u16); w * h];
+    runs.par_chunks_mut(w)
+        .zip(ids.par_chunks(w))
+        .for_each(|(run, id)| {
+            for c in 1..w {
+                if id[c] == id[c - 1] {
+                    run[c].0 = run[c - 1].0.saturating_add(1);
+                }
+            }
+            for c in (0..w - 1).rev() {
+                if id[c] == id[c + 1] {
+                    run[c].1 = run[c + 1].1.saturating_add(1);
+                }
+            }
+        });
+    // 3 and 4. The neighbourhood a pixel's exposure reaches, per grid cell: half the largest
+    // displacement of the cell's nodes along u and along v, plus the bilinear support.
+    let reach = |d: f64| {
+        if d > 0.0 {
+            (d / 2.0).ceil() as usize + 1
+        } else {
+            0
+        }
+    };
+    let cells: Vec<(usize, usize)> = (0..(gx - 1) * (gy - 1))
+        .map(|k| {
+            let (i, j) = (k % (gx - 1), k / (gx - 1));
+            let corners = [
+                displacement[j * gx + i],
+                displacement[j * gx + i + 1],
+                displacement[(j + 1) * gx + i],
+                displacement[(j + 1) * gx + i + 1],
+            ];
+            let du = corners.iter().map(|d| d.x.abs()).fold(0.0, f64::max);
+            let dv = corners.iter().map(|d| d.y.abs()).fold(0.0, f64::max);
+            (reach(du), reach(dv))
+        })
+        .collect();
+    let n = config.samples as usize;
+    let nn = n * n;
+    let mut out = vec![0f32; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(r, line)| {
+        let v_centre = r as f64 + 0.5;
+        let (j, fy) = {
+            let y = v_centre / g as f64;
+            let j = (y as usize).min(gy - 2);
+            (j, y - j as f64)
+        };
+        for (c, value) in line.iter_mut().enumerate() {
+            let u_centre = c as f64 + 0.5;
+            let x = u_centre / g as f64;
+            let i = (x as usize).min(gx - 2);
+            let (reach_u, reach_v) = cells[j * (gx - 1) + i];
+            let id = ids[r * w + c];
+            if id != NOT_UNIFORM && reach_u == 0 && reach_v == 0 {
+                // No blur here: the five-probe value.
+                *value = base[r * w + c];
+                continue;
+            }
+            let smooth = id != NOT_UNIFORM && {
+                let (left, right) = (reach_u.min(c), reach_u.min(w - 1 - c));
+                (r.saturating_sub(reach_v)..=(r + reach_v).min(h - 1)).all(|rr| {
+                    let k = rr * w + c;
+                    ids[k] == id
+                        && usize::from(runs[k].0) >= left
+                        && usize::from(runs[k].1) >= right
+                })
+            };
+            let fx = x - i as f64;
+            let at = |di: usize, dj: usize| displacement[(j + dj) * gx + i + di];
+            let d = (at(0, 0) * (1.0 - fx) + at(1, 0) * fx) * (1.0 - fy)
+                + (at(0, 1) * (1.0 - fx) + at(1, 1) * fx) * fy;
+            *value = if smooth {
+                // The mid-exposure image averaged along ±d/2 (midpoint rule, samples at most
+                // 1 px apart: the texture is already smoothed by the 0.7 px optical blur).
+                let count = (d.norm().ceil() as usize).max(1);
+                let mut s = 0f32;
+                for k in 0..count {
+                    let p = d * ((k as f64 + 0.5) / count as f64 - 0.5);
+                    s += bilinear(&base, w, h, c as f64 + p.x, r as f64 + p.y);
+                }
+                s / count as f32
+            } else {
+                let mut rng = SplitMix(mix(seed ^ 0x5EED_B1A5, frame, (r * w + c) as u64));
+                let mut strata = [0u16; 256];
+                for (k, s) in strata.iter_mut().enumerate().take(nn) {
+                    *s = k as u16;
+                }
+                for k in (1..nn).rev() {
+                    let other = (rng.next_u64() % (k as u64 + 1)) as usize;
+                    strata.swap(k, other);
+                }
+                let mut s = 0.0;
+                for sy in 0..n {
+                    for sx in 0..n {
+                        let u = c as f64 + (sx as f64 + 0.5) / n as f64;
+                        let v = r as f64 + (sy as f64 + 0.5) / n as f64;
+                        let tau = (f64::from(strata[sy * n + sx]) + rng.next_f64()) / nn as f64;
+                        let t = row_time(v) + shutter.exposure_s * (tau - 0.5);
+                        let (origin, dir) = view.ray(u, v, t);
+                        s += scene.radiance(&origin, &dir).0;
+                    }
+                }
+                (s / nn as f64) as f32
+            };
+        }
+    });
+    out
+}
+
+/// Bilinear interpolation of a row-major image at (x, y) in pixel-index units (pixel k's
+/// centre at k), clamped to the image.
+fn bilinear(img: &[f32], w: usize, h: usize, x: f64, y: f64) -> f32 {
+    let x = x.clamp(0.0, (w - 1) as f64);
+    let y = y.clamp(0.0, (h - 1) as f64);
+    // At an integer position the weight of the next pixel is exactly 0: the pixel's own value
+    // comes back unchanged.
+    let (x0, y0) = (x as usize, y as usize);
+    let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+    let at = |xx: usize, yy: usize| img[yy * w + xx];
+    let top = at(x0, y0) + (at(x1, y0) - at(x0, y0)) * fx;
+    let bottom = at(x0, y1) + (at(x1, y1) - at(x0, y1)) * fx;
+    top + (bottom - top) * fy
+}
+
 /// Separable Gaussian blur with clamped borders.
 fn blur(img: &mut [f32], w: usize, h: usize, sigma: f64) {
     if sigma <= 0.0 {
@@ -435,6 +743,24 @@ pub fn render_frame(
     develop(radiance, camera, gain, config, seed, frame)
 }
 
+/// Renders one frame of a moving camera end to end ([`render_radiance_moving`], then
+/// [`develop`]).
+///
+/// # Errors
+///
+/// As [`develop`].
+pub fn render_frame_moving(
+    scene: &Scene,
+    view: &MovingView<'_>,
+    gain: f64,
+    config: &RenderConfig,
+    seed: u64,
+    frame: u64,
+) -> Result<Frame, image::ImageError> {
+    let radiance = render_radiance_moving(scene, view, config, seed, frame);
+    develop(radiance, view.camera, gain, config, seed, frame)
+}
+
 /// The world point where the ray through pixel `uv` meets the scene (for tests and truth).
 #[must_use]
 pub fn surface_point(
@@ -553,6 +879,311 @@ mod tests {
         let expected = (1.0 + 0.02 * 100.0f64).sqrt(); // wall albedo 0.5 × gain 200 = 100 DN
         assert!((mean - 100.0).abs() < 0.5, "mean {mean}");
         assert!((sd / expected - 1.0).abs() < 0.15, "σ {sd} vs {expected}");
+    }
+
+    #[test]
+    fn moving_renderer_without_motion_is_the_still_renderer_bit_for_bit() {
+        let (scene, camera, pose) = setup();
+        let rays = RayGrid::new(&camera);
+        let poses = PoseTable::fixed(&pose);
+        let view = MovingView {
+            camera: &camera,
+            rays: &rays,
+            ray_scale: 1.0,
+            poses: &poses,
+            shutter: Shutter::global(3.0),
+        };
+        for adaptive in [true, false] {
+            let cfg = RenderConfig {
+                adaptive,
+                ..Default::default()
+            };
+            let still = render_radiance(&scene, &camera, &rays, &pose, &cfg);
+            let moving = render_radiance_moving(&scene, &view, &cfg, 1, 2);
+            assert!(still == moving, "adaptive {adaptive}: the renderers differ");
+        }
+    }
+
+    /// A disc of radius 0.5 m, 2 m in front of a pinhole camera (c = 300 px, 320×240; the
+    /// disc 75 px in radius, its plate 1.5× wider), seen while the camera turns about its y
+    /// axis at `omega` rad/s (a pan): the pose at time t.
+    fn panning(omega: f64) -> (Scene, BrownCamera, impl Fn(f64) -> Rigid3) {
+        let mut scene = Scene {
+            rects: vec![Rect::new(
+                "wall",
+                Point3::new(-3.0, 0.0, -3.0),
+                Vector3::x(),
+                Vector3::z(),
+                (6.0, 6.0),
+                Texture::constant(0.5),
+            )],
+            ambient: 1.0,
+            ..Default::default()
+        };
+        scene.place_targets(0, vec![(3.0, 3.0, 0.5, 0.75, Polarity::BlackOnWhite)]);
+        let camera = BrownCamera {
+            width: 320,
+            height: 240,
+            intrinsics: Intrinsics::pinhole(300.0, 160.0, 120.0),
+        };
+        let centre = Vector3::new(0.0, -2.0, 0.0);
+        let r0 = UnitQuaternion::from_basis_unchecked(&[Vector3::x(), -Vector3::z(), Vector3::y()])
+            .inverse();
+        let pose = move |t: f64| {
+            let rotation = UnitQuaternion::from_scaled_axis(Vector3::new(0.0, omega * t, 0.0)) * r0;
+            Rigid3::from_parts(Translation3::from(-(rotation * centre)), rotation)
+        };
+        (scene, camera, pose)
+    }
+
+    /// Area fraction of the disc in each pixel of row r (radiance 0.88 on the plate, 0.04 on
+    /// the disc, lit by the ambient light only).
+    fn disc_fraction(img: &[f32], w: usize, r: usize) -> Vec<f64> {
+        img[r * w..(r + 1) * w]
+            .iter()
+            .map(|&l| ((0.88 - f64::from(l)) / (0.88 - 0.04)).clamp(0.0, 1.0))
+            .collect()
+    }
+
+    /// Where the exact image of the disc at `pose` (a conic of the pinhole camera) crosses the
+    /// row at height v: (left, right).
+    fn conic_row(camera: &BrownCamera, pose: &Rigid3, v: f64) -> (f64, f64) {
+        let k = camera.intrinsics.pinhole_matrix();
+        let c = crate::geometry::conic::conic_of_circle(
+            &k,
+            pose,
+            &Vector3::zeros(),
+            &-Vector3::y(),
+            0.5,
+        )
+        .unwrap();
+        let (a, b, cc) = (
+            c[(0, 0)],
+            2.0 * (c[(0, 1)] * v + c[(0, 2)]),
+            c[(1, 1)] * v * v + 2.0 * c[(1, 2)] * v + c[(2, 2)],
+        );
+        let d = (b * b - 4.0 * a * cc).sqrt();
+        let (x1, x2) = ((-b - d) / (2.0 * a), (-b + d) / (2.0 * a));
+        (x1.min(x2), x1.max(x2))
+    }
+
+    #[test]
+    fn rolling_shutter_shears_a_disc_as_the_row_timing_predicts() {
+        let omega = 2.0;
+        let (scene, camera, pose) = panning(omega);
+        let rays = RayGrid::new(&camera);
+        let shutter = Shutter {
+            time_s: 0.0,
+            readout_s: 0.03,
+            exposure_s: 0.0,
+        };
+        let (t0, t1) = shutter.span();
+        let poses = PoseTable::new(&pose, t0, t1);
+        let view = MovingView {
+            camera: &camera,
+            rays: &rays,
+            ray_scale: 1.0,
+            poses: &poses,
+            shutter,
+        };
+        // 16×16 samples per edge pixel: the area fraction of a pixel to 1/256.
+        let cfg = RenderConfig {
+            samples: 16,
+            ..Default::default()
+        };
+        let img = render_radiance_moving(&scene, &view, &cfg, 1, 0);
+        let (w, mid) = (320usize, 160usize);
+        let (mut rs_sq, mut gs_sq, mut rows) = (0.0, 0.0, 0);
+        // Rows within 0.8 of the disc's radius of its centre row (120): the edge is steep there.
+        for r in 60..180 {
+            let f = disc_fraction(&img, w, r);
+            // Left edge: the disc fills [u_left, mid) of the plate's columns left of the
+            // middle (the plate spans 48–272 px, ±9 px with the shear; the wall beyond it).
+            let left = mid as f64 - f[mid - 100..mid].iter().sum::<f64>();
+            let right = mid as f64 + f[mid..mid + 100].iter().sum::<f64>();
+            let v = r as f64 + 0.5;
+            let at_row = conic_row(&camera, &pose(shutter.row_time(v, 240)), v);
+            let at_frame = conic_row(&camera, &pose(0.0), v);
+            for (m, e, g) in [(left, at_row.0, at_frame.0), (right, at_row.1, at_frame.1)] {
+                rs_sq += (m - e).powi(2);
+                gs_sq += (m - g).powi(2);
+            }
+            rows += 2;
+        }
+        let (rs, gs) = (
+            (rs_sq / f64::from(rows)).sqrt(),
+            (gs_sq / f64::from(rows)).sqrt(),
+        );
+        // The pan moves the image by ω·c ≈ 600 px/s; the rows 60 px from the middle are read
+        // 7.5 ms from the frame time: ±4.5 px of shear.
+        println!(
+            "edges vs rolling-shutter prediction {rs:.5} px RMS, vs frame-time disc {gs:.3} px"
+        );
+        assert!(gs > 2.0, "shear against the frame-time disc {gs} px RMS");
+        // Edge positions are area fractions over the row, sampled to 1/256 px·px: a few
+        // thousandths of a pixel, plus the curvature of the edge within the row (< 0.004 px).
+        assert!(
+            rs < 0.01,
+            "edges against the rolling-shutter prediction {rs} px RMS"
+        );
+    }
+
+    #[test]
+    fn motion_blur_widens_an_edge_by_the_image_speed_times_the_exposure() {
+        let omega = 1.0;
+        let (scene, camera, pose) = panning(omega);
+        let rays = RayGrid::new(&camera);
+        let cfg = RenderConfig {
+            samples: 16,
+            ..Default::default()
+        };
+        let width_25_75 = |exposure_s: f64| {
+            let shutter = Shutter {
+                time_s: 0.0,
+                readout_s: 0.0,
+                exposure_s,
+            };
+            let (t0, t1) = shutter.span();
+            let poses = PoseTable::new(&pose, t0, t1);
+            let view = MovingView {
+                camera: &camera,
+                rays: &rays,
+                ray_scale: 1.0,
+                poses: &poses,
+                shutter,
+            };
+            let img = render_radiance_moving(&scene, &view, &cfg, 3, 0);
+            let mut widths = Vec::new();
+            for r in 115..125 {
+                let f = disc_fraction(&img, 320, r);
+                // Crossing of level `q` along the left edge, between pixel centres.
+                let cross = |q: f64| {
+                    let c = (60..160).find(|&c| f[c] >= q).unwrap();
+                    c as f64 - 1.0 + (q - f[c - 1]) / (f[c] - f[c - 1]) + 0.5
+                };
+                widths.push(cross(0.75) - cross(0.25));
+            }
+            widths.iter().sum::<f64>() / widths.len() as f64
+        };
+        // The edge point seen at mid-exposure, projected at the start and the end.
+        let exposure = 0.02;
+        let edge = Vector3::new(-0.5, 0.0, 0.0);
+        let smear = (camera.project_world(&pose(exposure / 2.0), &edge).unwrap()
+            - camera.project_world(&pose(-exposure / 2.0), &edge).unwrap())
+        .norm();
+        assert!((6.0..7.0).contains(&smear), "smear {smear} px");
+        // A box of `smear` px convolved with the 1 px pixel: a trapezoid whose 25–75 % width
+        // is smear/2 (smear ≥ 2 px).
+        let blurred = width_25_75(exposure);
+        println!(
+            "smear {smear:.4} px: 25-75 % width {blurred:.4} px (expected {:.4})",
+            smear / 2.0
+        );
+        assert!(
+            (blurred / (smear / 2.0) - 1.0).abs() < 0.03,
+            "25–75 % width {blurred} px, expected {} px",
+            smear / 2.0
+        );
+        let sharp = width_25_75(0.0);
+        assert!(
+            sharp < 0.6,
+            "without exposure the edge is sharp: {sharp} px"
+        );
+    }
+
+    #[test]
+    fn adaptive_sampling_stays_exact_under_motion_blur() {
+        // Constant albedo and ambient light: smooth regions are constant, so the adaptive and
+        // the full rendering differ only where the adaptive rule took an edge pixel for smooth.
+        let (scene, camera, pose) = panning(1.5);
+        let rays = RayGrid::new(&camera);
+        let shutter = Shutter {
+            time_s: 0.0,
+            readout_s: 0.03,
+            exposure_s: 0.02,
+        };
+        let (t0, t1) = shutter.span();
+        let poses = PoseTable::new(&pose, t0, t1);
+        let view = MovingView {
+            camera: &camera,
+            rays: &rays,
+            ray_scale: 1.0,
+            poses: &poses,
+            shutter,
+        };
+        let adaptive = render_radiance_moving(&scene, &view, &RenderConfig::default(), 1, 0);
+        let full = render_radiance_moving(
+            &scene,
+            &view,
+            &RenderConfig {
+                adaptive: false,
+                ..Default::default()
+            },
+            1,
+            0,
+        );
+        let worst = adaptive
+            .iter()
+            .zip(&full)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        println!("adaptive vs full under blur: worst {worst}");
+        assert!(worst < 1e-5, "worst difference {worst}");
+        // The smear (9 px) is real: many pixels inside the plate are partly disc.
+        let partial = (40..200)
+            .flat_map(|r| (70..250).map(move |c| r * 320 + c))
+            .filter(|&k| full[k] > 0.05 && full[k] < 0.87)
+            .count();
+        assert!(partial > 1500, "{partial} blurred pixels");
+    }
+
+    #[test]
+    fn focus_breathing_scales_the_image_about_the_principal_point() {
+        // The same still camera with c 1 % longer, rendered through the grid of the shorter
+        // camera (ray_scale), sees the disc 1 % larger about the principal point.
+        let (scene, camera, pose) = panning(0.0);
+        let longer = BrownCamera {
+            intrinsics: Intrinsics {
+                c: 303.0,
+                ..camera.intrinsics
+            },
+            ..camera
+        };
+        let rays = RayGrid::new(&camera);
+        let own = RayGrid::new(&longer);
+        let poses = PoseTable::fixed(&pose(0.0));
+        let cfg = RenderConfig {
+            samples: 16,
+            ..Default::default()
+        };
+        let scaled = render_radiance_moving(
+            &scene,
+            &MovingView {
+                camera: &longer,
+                rays: &rays,
+                ray_scale: 300.0 / 303.0,
+                poses: &poses,
+                shutter: Shutter::global(0.0),
+            },
+            &cfg,
+            1,
+            0,
+        );
+        let direct = render_radiance(&scene, &longer, &own, &pose(0.0), &cfg);
+        let worst = scaled
+            .iter()
+            .zip(&direct)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        // Same rays up to the grid's interpolation (≤ 1e-4 px): edge pixels differ by at most
+        // a sample or two of 256 (0.84/256 each).
+        assert!(worst < 0.008, "worst difference {worst}");
+        let width = |img: &[f32]| -> f64 { disc_fraction(img, 320, 120)[60..260].iter().sum() };
+        assert!(
+            (width(&scaled) / 150.0 - 1.01).abs() < 1e-3,
+            "disc width {} px",
+            width(&scaled)
+        );
     }
 
     #[test]

@@ -12,6 +12,11 @@
 //! OUT/dense/fused.ply            the dense cloud triangulated from them (SfM frame)
 //! ```
 //!
+//! With `video` options the frames are filmed by a moving rolling-shutter camera instead
+//! ([`super::video`], which lists the extra outputs: neighbours, `frames/frames.json`, the
+//! full-rate video); without them (the default) every frame is a still, global-shutter frame at
+//! its station, as before.
+//!
 //! Every output is a pure function of the options and the seed: the same seed gives
 //! byte-identical files whatever the number of threads.
 
@@ -26,6 +31,7 @@ use super::render::{RayGrid, RenderConfig, RenderConfigError, exposure_gain, ren
 use super::scene::Scene;
 use super::sfm::{SfmConfig, stand_in};
 use super::truth::{TRUTH_SCHEMA, Truth, TruthCamera, frame_truth};
+use super::video::{Filming, VideoConfig};
 use crate::camera::BrownCamera;
 use crate::io::WriteError;
 use crate::io::atomic::write_bytes_atomic;
@@ -65,6 +71,8 @@ pub struct SimulateOptions {
     pub margin_px: f64,
     /// The command line, recorded in the truth.
     pub command: String,
+    /// Film a video ([`super::video`]); `None` (default): still, global-shutter frames.
+    pub video: Option<VideoConfig>,
 }
 
 impl Default for SimulateOptions {
@@ -79,6 +87,7 @@ impl Default for SimulateOptions {
             sfm_source: SfmSource::StandIn,
             margin_px: 4.0,
             command: String::new(),
+            video: None,
         }
     }
 }
@@ -198,6 +207,9 @@ impl SimulateOptions {
                 reason: "must be ≥ 0".into(),
             });
         }
+        if let Some(video) = &self.video {
+            video.validate()?;
+        }
         Ok(())
     }
 
@@ -301,6 +313,7 @@ fn truth_record(
     scene: &Scene,
     frames: Vec<super::truth::TruthFrame>,
     sfm: super::truth::SfmTruth,
+    video: Option<super::truth::VideoTruth>,
 ) -> Truth {
     Truth {
         schema: TRUTH_SCHEMA.into(),
@@ -321,7 +334,78 @@ fn truth_record(
         pipes: Vec::new(),
         tls: None,
         dense: None,
+        video,
     }
+}
+
+/// What filming a scene produced.
+struct Filmed<'a> {
+    frames: Vec<super::truth::TruthFrame>,
+    /// The stations at the extracted frames' times.
+    stations: Vec<Station>,
+    sfm: super::truth::SfmTruth,
+    video: Option<super::truth::VideoTruth>,
+    /// The video's camera, for the site's dense observations.
+    filming: Option<Filming<'a>>,
+}
+
+/// Renders the frames (stills, or a video when `options.video` is set) and writes the sparse
+/// model of the extracted frames; with video, the neighbours and the full-rate video come after
+/// the sparse model (COLMAP reads the frames folder recursively).
+fn film<'a>(
+    scene: &'a Scene,
+    camera: &BrownCamera,
+    stations: Vec<Station>,
+    gain: f64,
+    options: &'a SimulateOptions,
+    out: &Path,
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<Filmed<'a>, SimError> {
+    super::video::clear_video_outputs(out)?;
+    if options.video.is_none() {
+        let frames = render_frames(scene, camera, &stations, gain, options, out, progress)?;
+        let sfm = write_sparse(scene, camera, &stations, options, out)?;
+        return Ok(Filmed {
+            frames,
+            stations,
+            sfm,
+            video: None,
+            filming: None,
+        });
+    }
+    let filming = Filming::new(scene, camera, &stations, gain, options)?;
+    let stations = filming.stations();
+    let mut frames = filming.film_main(out, progress)?;
+    let sfm = write_sparse(scene, camera, &stations, options, out)?;
+    let video = filming.film_rest(&mut frames, out, progress)?;
+    Ok(Filmed {
+        frames,
+        stations,
+        sfm,
+        video: Some(video),
+        filming: Some(filming),
+    })
+}
+
+/// The number of frames a simulation renders (progress): the frames, and with video their
+/// neighbours and the full-rate video.
+///
+/// # Errors
+///
+/// [`SimError`] for bad options.
+pub fn frames_to_render(options: &SimulateOptions, frames: usize) -> Result<usize, SimError> {
+    let Some(video) = &options.video else {
+        return Ok(frames);
+    };
+    video.validate()?;
+    let neighbours = if video.neighbours { 2 * frames } else { 0 };
+    let full_rate = if video.full_rate_width.is_some() {
+        let last = frames.saturating_sub(1) as f64 * video.interval_s;
+        (last * video.frame_rate + 1e-9).floor() as usize + 1
+    } else {
+        0
+    };
+    Ok(frames + neighbours + full_rate)
 }
 
 /// Simulates the calibration lab into `out`.
@@ -345,9 +429,16 @@ pub fn simulate_lab(
         super::lab::reference_irradiance(&scene, lab),
     );
     std::fs::create_dir_all(out).map_err(|e| WriteError::new(out, e))?;
-    let frames = render_frames(&scene, &camera, &stations, gain, options, out, progress)?;
-    let sfm = write_sparse(&scene, &camera, &stations, options, out)?;
-    let truth = truth_record("lab", options, &camera, &scene, frames, sfm);
+    let filmed = film(&scene, &camera, stations, gain, options, out, progress)?;
+    let truth = truth_record(
+        "lab",
+        options,
+        &camera,
+        &scene,
+        filmed.frames,
+        filmed.sfm,
+        filmed.video,
+    );
     write_truth(&truth, out)?;
     Ok(truth)
 }
@@ -368,27 +459,35 @@ pub fn lab_geometry(
     lab.validate()?;
     let camera = options.camera()?;
     let scene = super::lab::build_scene(lab, texel_size(&camera), options.seed);
-    let stations = super::lab::path(lab, options.seed);
-    let frames: Vec<_> = stations
-        .par_iter()
-        .enumerate()
-        .map(|(k, station)| {
-            frame_truth(
-                &scene,
-                &camera,
-                k as u32 + 1,
-                &options.frame_name(k),
-                &station.cam_from_world,
-                station.orientation,
-                options.margin_px,
-            )
-        })
-        .collect();
+    let mut stations = super::lab::path(lab, options.seed);
+    let (frames, video) = if options.video.is_some() {
+        // The gain does not enter the truth.
+        let filming = Filming::new(&scene, &camera, &stations, 1.0, options)?;
+        stations = filming.stations();
+        (filming.truth_frames(), Some(filming.truth(None)))
+    } else {
+        let frames = stations
+            .par_iter()
+            .enumerate()
+            .map(|(k, station)| {
+                frame_truth(
+                    &scene,
+                    &camera,
+                    k as u32 + 1,
+                    &options.frame_name(k),
+                    &station.cam_from_world,
+                    station.orientation,
+                    options.margin_px,
+                )
+            })
+            .collect();
+        (frames, None)
+    };
     let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
     let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
     let (model, sfm) = stand_in(&scene, &camera, &poses, &names, &options.sfm, options.seed);
     Ok((
-        truth_record("lab", options, &camera, &scene, frames, sfm),
+        truth_record("lab", options, &camera, &scene, frames, sfm, video),
         model,
     ))
 }
@@ -416,7 +515,7 @@ pub fn simulate_site(
     out: &Path,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Truth, SimError> {
-    use super::dense::{dense_observations, fuse, tls_scan, tls_targets};
+    use super::dense::{dense_observations, dense_observations_with, fuse, tls_scan, tls_targets};
     options.validate()?;
     site.site.validate()?;
     let camera = options.camera()?;
@@ -424,15 +523,32 @@ pub fn simulate_site(
     let stations = super::site::path(&site.site, options.seed);
     let gain = exposure_gain(&options.render, super::site::reference_irradiance(&scene));
     std::fs::create_dir_all(out).map_err(|e| WriteError::new(out, e))?;
-    let frames = render_frames(&scene, &camera, &stations, gain, options, out, progress)?;
-    let sfm = write_sparse(&scene, &camera, &stations, options, out)?;
+    let Filmed {
+        frames,
+        stations,
+        sfm,
+        video,
+        filming,
+    } = film(&scene, &camera, stations, gain, options, out, progress)?;
 
     // Dense observations and the fused cloud at the sparse model's poses.
     let dense_dir = out.join("dense");
     std::fs::create_dir_all(&dense_dir).map_err(|e| WriteError::new(&dense_dir, e))?;
     let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
     let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
-    let obs = dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed);
+    // A video's frames see each point in its own row (the cloud then carries the rolling
+    // shutter's distortion, as a dense reconstruction of such frames does).
+    let obs = match &filming {
+        None => dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed),
+        Some(filming) => dense_observations_with(
+            &scene,
+            &camera,
+            &filming.dense_observer(),
+            &names,
+            &site.dense,
+            options.seed,
+        ),
+    };
     obs.write(&dense_dir.join("observations.bin"))?;
     let model =
         crate::io::colmap::Reconstruction::read_format(&out.join("sparse"), ModelFormat::Text)
@@ -496,7 +612,7 @@ pub fn simulate_site(
             fused_points: fused.len(),
             labels: obs.labels.clone(),
         }),
-        ..truth_record("site", options, &camera, &scene, frames, sfm)
+        ..truth_record("site", options, &camera, &scene, frames, sfm, video)
     };
     write_truth(&truth, out)?;
     Ok(truth)

@@ -13,12 +13,35 @@
 //! A target is visible in a frame when its centre is in front of the camera, its face points
 //! toward the camera, all 720 edge points project inside the frame at least `margin_px` from
 //! the border, and the centre and 16 edge points are not hidden by any surface.
+//!
+//! # Video (optional fields; absent for the default still, global-shutter frames)
+//!
+//! With `SimulateOptions::video` the frames come from a moving rolling-shutter camera
+//! ([`super::video`]); the truth then adds, compatibly:
+//!
+//! * per frame `motion` ([`FrameMotion`]): its time, readout and exposure times, the angular and
+//!   linear velocities at the frame time (camera frame, [`super::trajectory`]'s convention) and
+//!   the principal distance used (focus breathing); the frame's `qvec`/`tvec` are the pose at
+//!   the frame time (the middle row);
+//! * per frame `neighbours`: the frames rendered 1/fps before and after it, as frames (their
+//!   `motion.dt_s` is the offset; they are not in the sparse model);
+//! * per target view `time_s`: the view is what the rolling-shutter camera sees — `centre_px`
+//!   is the exact rolling-shutter projection of the centre ([`super::shutter`]), seen at
+//!   `time_s`; `fitted` is fitted to the 720 edge points each projected exactly in its own row;
+//!   `pinhole` and `pinhole_centre_px` are those of the pose at `time_s`, and visibility is
+//!   judged from there;
+//! * `video` ([`VideoTruth`]): the options, and the trajectory itself, so that
+//!   `cam_from_world(t)` can be recomputed from the truth file alone.
 
 use nalgebra::{Matrix3, Point3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
+use rayon::prelude::*;
+
 use super::render::RenderConfig;
 use super::scene::{Scene, Target};
+use super::shutter::{Shutter, project_rolling_shutter};
+use super::trajectory::Trajectory;
 use crate::camera::{BrownCamera, Intrinsics};
 use crate::geometry::Rigid3;
 use crate::geometry::conic::{Ellipse, conic_of_circle, fit_ellipse_direct};
@@ -79,6 +102,30 @@ pub struct TargetView {
     pub pinhole: Ellipse,
     /// Ellipse fitted to exact distorted edge points: what a detector should find.
     pub fitted: Ellipse,
+    /// Video frames: the time the centre is seen (the middle of its row's exposure, s).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub time_s: Option<f64>,
+}
+
+/// How a video frame was taken (see the module documentation).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameMotion {
+    /// Frame time: the middle of the middle row's exposure (s).
+    pub time_s: f64,
+    /// Readout time (s): row v is exposed around `time_s + (v/H − 1/2)·readout_s`.
+    pub readout_s: f64,
+    /// Exposure time of every row (s).
+    pub exposure_s: f64,
+    /// ω at the frame time, camera frame (rad/s).
+    pub angular_velocity: [f64; 3],
+    /// ν at the frame time, camera frame (m/s).
+    pub linear_velocity: [f64; 3],
+    /// The principal distance c of this frame (px): the camera's, or under focus breathing
+    /// the one following the focus distance (b1 and b2 scale with it).
+    pub principal_distance: f64,
+    /// Neighbours: the offset from their main frame (s); absent for main frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dt_s: Option<f64>,
 }
 
 /// One frame.
@@ -96,6 +143,13 @@ pub struct TruthFrame {
     pub orientation: Orientation,
     /// Visible targets.
     pub targets: Vec<TargetView>,
+    /// Video frames: time, shutter and motion.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub motion: Option<FrameMotion>,
+    /// Video frames with neighbours: the frames 1/fps before and after this one (their
+    /// `image_id` is this frame's; they are not in the sparse model).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub neighbours: Vec<TruthFrame>,
 }
 
 impl TruthFrame {
@@ -281,6 +335,60 @@ pub struct Truth {
     /// Dense observations (site).
     #[serde(default)]
     pub dense: Option<DenseTruth>,
+    /// Video: the options and the trajectory (absent for still frames).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video: Option<VideoTruth>,
+}
+
+/// How the video was filmed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct VideoTruth {
+    /// The video options as given.
+    pub config: super::video::VideoConfig,
+    /// Readout time used (s): the option, or the device preset's.
+    pub readout_s: f64,
+    /// Exposure time (s).
+    pub exposure_s: f64,
+    /// Video frame rate (frames/s).
+    pub frame_rate: f64,
+    /// Focus breathing β used (m; 0 when off): c = c₀·(1 + β·(1/d − 1/`focus_reference_m`)).
+    pub focus_breathing_m: f64,
+    /// Focus distance at which c is the camera's (m).
+    pub focus_reference_m: f64,
+    /// The camera's trajectory: `cam_from_world(t)` and its velocities.
+    pub trajectory: super::trajectory::Trajectory,
+    /// The full-rate video, when rendered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub full_rate: Option<FullRateTruth>,
+}
+
+impl VideoTruth {
+    /// The timing of the frame taken at `time_s`.
+    #[must_use]
+    pub fn shutter(&self, time_s: f64) -> super::shutter::Shutter {
+        super::shutter::Shutter {
+            time_s,
+            readout_s: self.readout_s,
+            exposure_s: self.exposure_s,
+        }
+    }
+}
+
+/// The full-rate video (`OUT/video/`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FullRateTruth {
+    /// Frame width (px).
+    pub width: u32,
+    /// Frame height (px).
+    pub height: u32,
+    /// Frames written (`video/frame_00001.png` …, frame j at time (j − 1)/frame_rate).
+    pub frames: usize,
+    /// `video.mp4` when ffmpeg encoded it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mp4: Option<String>,
+    /// Why there is no `video.mp4` (ffmpeg missing or failed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
 }
 
 impl Truth {
@@ -376,6 +484,7 @@ pub fn target_view(
         pinhole_centre_px: [pc.x, pc.y],
         pinhole,
         fitted,
+        time_s: None,
     })
 }
 
@@ -403,6 +512,111 @@ pub fn frame_truth(
         tvec,
         orientation,
         targets,
+        motion: None,
+        neighbours: Vec::new(),
+    }
+}
+
+/// The view of `target` from a moving rolling-shutter camera (`camera` is the frame's, with
+/// its principal distance), or `None` if it is not visible; see the module documentation.
+#[must_use]
+pub fn target_view_moving(
+    scene: &Scene,
+    camera: &BrownCamera,
+    shutter: &Shutter,
+    pose_at: &(dyn Fn(f64) -> Rigid3 + Sync),
+    target: &Target,
+    margin_px: f64,
+) -> Option<TargetView> {
+    let centre = Vector3::from(target.centre);
+    let normal = Vector3::from(target.normal);
+    let frame_pose = pose_at(shutter.time_s);
+    let p_frame = frame_pose.rotation * centre + frame_pose.translation.vector;
+    if p_frame.z <= 0.0 {
+        return None;
+    }
+    let seen = project_rolling_shutter(camera, shutter, pose_at, &centre, None)?;
+    let pose = pose_at(seen.time_s);
+    let eye = camera_centre(&pose);
+    let p_cam = pose.rotation * centre + pose.translation.vector;
+    if p_cam.z <= 0.0 || normal.dot(&(eye.coords - centre)) <= 0.0 {
+        return None;
+    }
+    let (u, v) = plane_axes(&normal);
+    let edge_world = |phi: f64| centre + (u * phi.cos() + v * phi.sin()) * target.radius;
+    let mut edge_px = Vec::with_capacity(EDGE_POINTS);
+    for k in 0..EDGE_POINTS {
+        let phi = std::f64::consts::TAU * k as f64 / EDGE_POINTS as f64;
+        let uv =
+            project_rolling_shutter(camera, shutter, pose_at, &edge_world(phi), Some(seen.uv.y))?
+                .uv;
+        if !camera.contains(&uv, margin_px) {
+            return None;
+        }
+        edge_px.push(uv);
+    }
+    let tolerance = 1e-3;
+    if !scene.visible(&eye, &Point3::from(centre), tolerance) {
+        return None;
+    }
+    for k in 0..OCCLUSION_POINTS {
+        let phi = std::f64::consts::TAU * k as f64 / OCCLUSION_POINTS as f64;
+        if !scene.visible(&eye, &Point3::from(edge_world(phi)), tolerance) {
+            return None;
+        }
+    }
+    let k = pinhole_matrix(&camera.intrinsics);
+    let conic = conic_of_circle(&k, &pose, &centre, &normal, target.radius)?;
+    let pinhole = Ellipse::from_conic(&conic)?;
+    let pc = k * (p_cam / p_cam.z);
+    let fitted = fit_ellipse_direct(&edge_px)?;
+    Some(TargetView {
+        id: target.id,
+        centre_px: [seen.uv.x, seen.uv.y],
+        pinhole_centre_px: [pc.x, pc.y],
+        pinhole,
+        fitted,
+        time_s: Some(seen.time_s),
+    })
+}
+
+/// A video frame's truth record: the pose at the frame time, the motion, and the targets as
+/// the rolling-shutter camera `camera` (the frame's own) sees them along `trajectory`.
+#[must_use]
+pub fn frame_truth_moving(
+    scene: &Scene,
+    camera: &BrownCamera,
+    trajectory: &Trajectory,
+    shutter: &Shutter,
+    label: (u32, &str, Orientation),
+    margin_px: f64,
+) -> TruthFrame {
+    let (image_id, name, orientation) = label;
+    let motion = trajectory.motion(shutter.time_s);
+    let (qvec, tvec) = colmap_from_rigid(&motion.cam_from_world);
+    let pose_at = |t: f64| trajectory.cam_from_world(t);
+    let targets = scene
+        .targets
+        .par_iter()
+        .filter_map(|t| target_view_moving(scene, camera, shutter, &pose_at, t, margin_px))
+        .collect();
+    TruthFrame {
+        image_id,
+        name: name.into(),
+        qvec,
+        tvec,
+        orientation,
+        targets,
+        motion: Some(FrameMotion {
+            time_s: shutter.time_s,
+            readout_s: shutter.readout_s,
+            exposure_s: shutter.exposure_s,
+            angular_velocity: motion.angular_velocity.into(),
+            linear_velocity: motion.linear_velocity.into(),
+            principal_distance: camera.intrinsics.c,
+            dt_s: None,
+        }),
+        neighbours: Vec::new(),
     }
 }
 
