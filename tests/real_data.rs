@@ -35,11 +35,16 @@ fn mug_cloud_has_209280_finite_points() {
 
 const BOOFCV: &str = "../shared/data/boofcv_circle_grids";
 
-/// The detections of a real photo, with the CLI's smallest semi-minor axis (3 px).
-fn detect_photo(path: &Path) -> Vec<pipemeasure::detect::DetectedEllipse> {
+/// The detections of a real photo with the CLI's smallest semi-minor axis (3 px) and
+/// `polarity` (`None`: both).
+fn detect_photo(
+    path: &Path,
+    polarity: Option<pipemeasure::detect::DiscPolarity>,
+) -> Vec<pipemeasure::detect::DetectedEllipse> {
     use pipemeasure::detect::{DetectConfig, Detector};
     let mut detector = Detector::new(DetectConfig {
         min_semi_minor_px: 3.0,
+        polarity,
         ..DetectConfig::default()
     })
     .unwrap();
@@ -61,7 +66,7 @@ fn boofcv_regular_grid_stills_show_exactly_the_80_dots() {
     photos.sort();
     assert_eq!(photos.len(), 6);
     for p in &photos {
-        let found = detect_photo(p);
+        let found = detect_photo(p, None);
         let dark = found
             .iter()
             .filter(|e| e.polarity == pipemeasure::detect::DiscPolarity::Dark)
@@ -72,27 +77,163 @@ fn boofcv_regular_grid_stills_show_exactly_the_80_dots() {
 }
 
 /// BoofCV's hexagonal grid (24 rows × 28 columns in its `calibration_target.yaml`: 336 dots —
-/// half of 24 × 28, as alternate rows are offset; not 672): every dark dot of the six photos
-/// that show the whole grid is found. Known gap (issue 18): up to two *light* round blobs off
-/// the board — white pins on the brown background, with a one-sided shadow — are found too.
+/// half of 24 × 28, as alternate rows are offset; not 672): in the six photos that show the
+/// whole grid, a detector looking for dark discs (as a dot grid's calibration does, and OpenCV's
+/// blob detector by default) finds exactly the 336 dots. Looking for both polarities it also
+/// finds one or two white pins off the board per photo (domes with a one-sided shadow on the
+/// brown clipboard): their appearance — step residual ≤ 0.05, interior 0.06–0.10 and surround
+/// 0.04–0.07 of the contrast — lies within what the grid's own dots show in JPEG and H.264
+/// (interior up to 0.08, surround up to 0.08), so no appearance test can drop them without
+/// dropping dots (issue 18; README "Target detection").
 #[test]
 fn boofcv_hexagonal_grid_stills_show_all_336_dots() {
+    use pipemeasure::detect::DiscPolarity;
     let dir = Path::new(BOOFCV).join("stills_hexagonal");
     for name in [
         "image01", "image02", "image03", "image04", "image05", "image07",
     ] {
-        let found = detect_photo(&dir.join(format!("{name}.jpg")));
-        let dark = found
+        let path = dir.join(format!("{name}.jpg"));
+        let dark = detect_photo(&path, Some(DiscPolarity::Dark));
+        assert_eq!(dark.len(), 336, "{name}");
+        assert!(dark.iter().all(|e| e.polarity == DiscPolarity::Dark));
+        let both = detect_photo(&path, None);
+        let light = both
             .iter()
-            .filter(|e| e.polarity == pipemeasure::detect::DiscPolarity::Dark)
+            .filter(|e| e.polarity == DiscPolarity::Light)
             .count();
-        assert_eq!(dark, 336, "{name}");
-        assert!(
-            found.len() - dark <= 2,
-            "{name}: {} light blobs",
-            found.len() - dark
-        );
+        assert_eq!(both.len() - light, 336, "{name}");
+        assert!(light <= 2, "{name}: {light} light blobs");
     }
+}
+
+/// Extracts every 15th frame of BoofCV's hand-held 8×10 dot-grid video into `dir` as the issue
+/// and `scripts/boofcv_video_grid.py` do (`frame_0001.jpg` … `frame_0042.jpg`).
+fn extract_every_15th_frame(dir: &Path) {
+    let movie = Path::new(BOOFCV).join("video_regular/movie.mp4");
+    let out = std::process::Command::new("ffmpeg")
+        .args(["-loglevel", "error", "-i"])
+        .arg(&movie)
+        .args([
+            "-vf",
+            "select=not(mod(n\\,15))",
+            "-vsync",
+            "vfr",
+            "-q:v",
+            "2",
+        ])
+        .arg(dir.join("frame_%04d.jpg"))
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert_eq!(std::fs::read_dir(dir).unwrap().count(), 42);
+}
+
+/// Issue 18 acceptance on BoofCV's hand-held video of its 8×10 dot grid (every 15th frame: 42
+/// frames of 640×480 H.264 with motion blur; dots down to 2.4 px in semi-minor axis, on wooden
+/// boards and asphalt with pebbles, beside the clipboard's clip). The reference is independent:
+/// OpenCV 4.6's `findCirclesGrid` (its own blob detector, symmetric 8×10 pattern, its
+/// clustering finder where the plain one fails) found the whole grid in 39 of the frames
+/// (`tests/fixtures/boofcv_video_grid.json`, written by `scripts/boofcv_video_grid.py`; in the
+/// other three the grid runs out of the frame). In each of the 39, looking for dark discs of
+/// semi-minor axis ≥ 2 px: each of the 80 grid positions has exactly one detection within 0.3 of
+/// its grid spacing and 2 px (OpenCV's thresholded blob centroids differ from an edge fit by up
+/// to 1.6 px on motion-blurred dots, 0.035 px in the median), and no detection lies farther than
+/// half a spacing from every grid position. The three frames without a reference are left out:
+/// a grid mapped from our own detections would not be an independent check.
+#[test]
+fn boofcv_video_frames_show_every_grid_dot_and_nothing_else() {
+    use pipemeasure::detect::{DetectConfig, Detector, DiscPolarity};
+    if !common::program_available("ffmpeg", "-version", "apt-get install -y ffmpeg") {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    extract_every_15th_frame(tmp.path());
+    let fixture: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string("tests/fixtures/boofcv_video_grid.json").unwrap(),
+    )
+    .unwrap();
+    assert_eq!(fixture["frames_extracted"], 42);
+    let frames = fixture["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 39);
+    let mut detector = Detector::new(DetectConfig {
+        min_semi_minor_px: 2.0,
+        polarity: Some(DiscPolarity::Dark),
+        ..DetectConfig::default()
+    })
+    .unwrap();
+    let mut offsets = Vec::new();
+    for f in frames {
+        let name = f["frame"].as_str().unwrap();
+        let (rows, cols) = (
+            f["rows"].as_u64().unwrap() as usize,
+            f["cols"].as_u64().unwrap() as usize,
+        );
+        let grid: Vec<nalgebra::Vector2<f64>> = f["centres"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|c| nalgebra::Vector2::new(c[0].as_f64().unwrap(), c[1].as_f64().unwrap()))
+            .collect();
+        assert_eq!(grid.len(), rows * cols);
+        // Each grid position's spacing: the distance to its nearest grid neighbour.
+        let spacing: Vec<f64> = (0..grid.len())
+            .map(|k| {
+                let (r, c) = (k / cols, k % cols);
+                [(0, 1), (1, 0), (0, -1), (-1, 0)]
+                    .iter()
+                    .filter_map(|&(dr, dc): &(isize, isize)| {
+                        let (r2, c2) = (r as isize + dr, c as isize + dc);
+                        (r2 >= 0 && c2 >= 0 && (r2 as usize) < rows && (c2 as usize) < cols)
+                            .then(|| (grid[r2 as usize * cols + c2 as usize] - grid[k]).norm())
+                    })
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .collect();
+        let frame = pipemeasure::io::frames::read_frame(&tmp.path().join(name)).unwrap();
+        let found: Vec<nalgebra::Vector2<f64>> = detector
+            .detect(&frame)
+            .ellipses
+            .iter()
+            .map(|e| nalgebra::Vector2::new(e.cx, e.cy))
+            .collect();
+        for (k, g) in grid.iter().enumerate() {
+            let near: Vec<f64> = found
+                .iter()
+                .map(|p| (p - g).norm())
+                .filter(|&d| d < 0.3 * spacing[k])
+                .collect();
+            assert_eq!(
+                near.len(),
+                1,
+                "{name}: grid position {k} at {g:?}: {near:?}"
+            );
+            assert!(
+                near[0] < 2.0,
+                "{name}: grid position {k}: {} px off",
+                near[0]
+            );
+            offsets.push(near[0]);
+        }
+        for p in &found {
+            let on_grid = grid
+                .iter()
+                .zip(&spacing)
+                .any(|(g, s)| (p - g).norm() <= 0.5 * s);
+            assert!(on_grid, "{name}: detection at {p:?} is off the grid");
+        }
+    }
+    offsets.sort_by(f64::total_cmp);
+    eprintln!(
+        "{} dots; offset from OpenCV's centres: median {:.3} px, 99th percentile {:.3} px, max {:.3} px",
+        offsets.len(),
+        offsets[offsets.len() / 2],
+        offsets[offsets.len() * 99 / 100],
+        offsets[offsets.len() - 1]
+    );
 }
 
 /// BoofCV's real hand-held video of its flat 8×10 dot grid on a carpet (640×480 H.264, every
@@ -114,27 +255,7 @@ fn boofcv_hand_held_dot_grid_video_calibrates() {
     let tmp = tempfile::tempdir().unwrap();
     let frames = tmp.path().join("frames");
     std::fs::create_dir_all(&frames).unwrap();
-    let movie = Path::new(BOOFCV).join("video_regular/movie.mp4");
-    let out = std::process::Command::new("ffmpeg")
-        .args(["-loglevel", "error", "-i"])
-        .arg(&movie)
-        .args([
-            "-vf",
-            "select=not(mod(n\\,15))",
-            "-vsync",
-            "vfr",
-            "-q:v",
-            "2",
-        ])
-        .arg(frames.join("frame_%04d.jpg"))
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert_eq!(std::fs::read_dir(&frames).unwrap().count(), 42);
+    extract_every_15th_frame(&frames);
     let (code, stdout, stderr) = common::pipemeasure(
         tmp.path(),
         &[

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 use image::{DynamicImage, Rgb, RgbImage};
-use pipemeasure::detect::{DetectConfig, Detection, Detector};
+use pipemeasure::detect::{DetectConfig, Detection, Detector, DiscPolarity};
 use pipemeasure::io::atomic::StagedDir;
 use pipemeasure::io::frames::{read_frame, write_png};
 use rayon::prelude::*;
@@ -28,6 +28,17 @@ pub struct Args {
     /// Smallest semi-minor axis to report (px, at least 1).
     #[arg(long, default_value_t = 3.0, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
+    /// Only targets of this polarity: `dark` (black discs on white, as a dot calibration grid)
+    /// or `light`; both when not given.
+    #[arg(long, value_enum)]
+    polarity: Option<Polarity>,
+}
+
+/// `--polarity`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum Polarity {
+    Dark,
+    Light,
 }
 
 #[derive(Serialize)]
@@ -40,6 +51,10 @@ struct FrameOutput<'a> {
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let config = DetectConfig {
         min_semi_minor_px: args.min_semi_minor,
+        polarity: args.polarity.map(|p| match p {
+            Polarity::Dark => DiscPolarity::Dark,
+            Polarity::Light => DiscPolarity::Light,
+        }),
         ..DetectConfig::default()
     };
     Detector::new(config.clone())?;

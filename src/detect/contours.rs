@@ -106,7 +106,8 @@ pub fn candidates(g: &Gradients, chains: &[Vec<u32>], limits: &CandidateLimits) 
             .max(((first / w) as isize - (last / w) as isize).abs());
         // Closed: the ends meet, or the gradient turns all the way round (a chain may overrun
         // its start along a doubled edge).
-        let closed = chain.len() >= 12 && (gap <= 2 || turning(g, chain) >= 5.0);
+        // (A disc of semi-minor axis 2 px closes a chain of about 11 pixels.)
+        let closed = chain.len() >= 8 && (gap <= 2 || turning(g, chain) >= 5.0);
         let whole = closed.then(|| chain.clone());
         for arc in whole.into_iter().chain(split_arcs(g, chain)) {
             propose(g, &arc, limits, w, &mut out);

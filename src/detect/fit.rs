@@ -202,6 +202,144 @@ pub fn fit_ellipse_geometric(
     })
 }
 
+/// Signed orthogonal distance of `p` to `e` (positive outside), exact (the closest point by
+/// Newton's method on the ellipse parameter).
+#[must_use]
+pub fn orthogonal_distance(e: &Ellipse, p: &Vector2<f64>) -> f64 {
+    residual(e, p).0
+}
+
+/// Standard deviation of the centre of the geometric fit `e` of `points` (a closed contour, in
+/// order) when the points' errors are correlated, `rho(i, j)` the correlation of points `i` and
+/// `j` (taken as zero for pairs more than `reach` positions apart along the contour): the
+/// covariance of the least-squares estimate under correlated errors, `σ²·N⁻¹·M·N⁻¹` with
+/// `N = Σ JᵢJᵢᵀ` and `M = Σᵢⱼ ρᵢⱼ·JᵢJⱼᵀ`, and `σ²` from the residual sum of squares over its
+/// expectation's degrees of freedom `n − tr(N⁻¹M)` (Seber & Lee, *Linear Regression Analysis*,
+/// 2nd ed., 2003, §3.6, least squares with correlated errors). Points beyond 3 robust σ of the
+/// residuals are left out, as in [`fit_ellipse_geometric`]. `None` for fewer than 6 points or a
+/// singular normal matrix.
+#[must_use]
+pub fn centre_std_correlated(
+    e: &Ellipse,
+    points: &[Vector2<f64>],
+    rho: impl Fn(usize, usize) -> f64,
+    reach: usize,
+) -> Option<f64> {
+    let res: Vec<(f64, SVector<f64, 5>)> = points.iter().map(|p| residual(e, p)).collect();
+    let dists: Vec<f64> = res.iter().map(|r| r.0).collect();
+    let cut = 3.0 * (1.4826 * median_abs(&dists)).max(1e-6);
+    let used: Vec<usize> = (0..points.len())
+        .filter(|&i| dists[i].abs() <= cut)
+        .collect();
+    let n = used.len();
+    if n < 6 {
+        return None;
+    }
+    let mut normal = SMatrix::<f64, 5, 5>::zeros();
+    let mut ss = 0.0;
+    for &i in &used {
+        normal += res[i].1 * res[i].1.transpose();
+        ss += res[i].0 * res[i].0;
+    }
+    let mut m = normal;
+    // Each unordered pair once: forward along the closed contour up to `reach` positions (and
+    // at most half way round).
+    let span = reach.min(n / 2);
+    for a in 0..n {
+        for step in 1..=span {
+            let b = (a + step) % n;
+            if 2 * step == n && b < a {
+                continue;
+            }
+            let r = rho(used[a], used[b]);
+            if r != 0.0 {
+                m += (res[used[a]].1 * res[used[b]].1.transpose()
+                    + res[used[b]].1 * res[used[a]].1.transpose())
+                    * r;
+            }
+        }
+    }
+    let q = normal.try_inverse()?;
+    let qm = q * m;
+    let dof = (n as f64 - qm.trace()).max(1.0);
+    let cov = q * m * q * (ss / dof);
+    Some((0.5 * (cov[(0, 0)] + cov[(1, 1)])).max(0.0).sqrt())
+}
+
+/// The part of the residuals of a fit that an ellipse cannot have: the amplitude (px) of the
+/// harmonics 3 to 6 of the orthogonal residuals as a function of the eccentric angle,
+/// `sqrt(Σₖ aₖ² + bₖ²)` from a least-squares fit of harmonics 0 to 6 (points beyond 3 robust σ
+/// left out). An ellipse's own error lives in harmonics 0–2 (centre, axes, angle); noise spreads
+/// over all; a shape with corners (a rectangle, a sector of a ring: harmonics 4 and 3) or a
+/// triangle (3 and 6) concentrates in these. `None` for fewer than 20 points.
+#[must_use]
+pub fn shape_harmonics(e: &Ellipse, points: &[Vector2<f64>]) -> Option<f64> {
+    const K: usize = 6;
+    let (s, c) = e.theta.sin_cos();
+    let res: Vec<(f64, f64)> = points
+        .iter()
+        .map(|p| {
+            let d = p - e.centre();
+            let (u, v) = (c * d.x + s * d.y, -s * d.x + c * d.y);
+            ((e.a * v).atan2(e.b * u), residual(e, p).0)
+        })
+        .collect();
+    let dists: Vec<f64> = res.iter().map(|r| r.1).collect();
+    let cut = 3.0 * (1.4826 * median_abs(&dists)).max(1e-6);
+    let used: Vec<(f64, f64)> = res.into_iter().filter(|r| r.1.abs() <= cut).collect();
+    if used.len() < 20 {
+        return None;
+    }
+    let mut n = SMatrix::<f64, 13, 13>::zeros();
+    let mut g = SVector::<f64, 13>::zeros();
+    for &(phi, r) in &used {
+        let mut x = SVector::<f64, 13>::zeros();
+        x[0] = 1.0;
+        for k in 1..=K {
+            let (sk, ck) = (k as f64 * phi).sin_cos();
+            x[2 * k - 1] = ck;
+            x[2 * k] = sk;
+        }
+        n += x * x.transpose();
+        g += x * r;
+    }
+    let coef = n.try_inverse()? * g;
+    Some(
+        ((2 * 3 - 1)..=(2 * K))
+            .map(|i| coef[i] * coef[i])
+            .sum::<f64>()
+            .sqrt(),
+    )
+}
+
+/// Variance inflation factor of a least-squares estimate from serially correlated residuals:
+/// `1 + 2·Σ_{k=1..m} (1 − k/(m+1))·ρ_k`, the Bartlett-weighted sum of the residuals'
+/// autocorrelations `ρ_k` around the closed contour (Newey & West 1987, "A simple, positive
+/// semi-definite, heteroskedasticity and autocorrelation consistent covariance matrix",
+/// Econometrica 55: 703–708), with `m = max_lag`. When the correlation length is short against
+/// the scale on which the design (the edge normals) turns, the covariance of the estimate is the
+/// independent-error covariance times this factor. Never below 1; 1 for fewer than 8 residuals.
+#[must_use]
+pub fn variance_inflation(residuals: &[f64], max_lag: usize) -> f64 {
+    let n = residuals.len();
+    if n < 8 {
+        return 1.0;
+    }
+    let mean = residuals.iter().sum::<f64>() / n as f64;
+    let r: Vec<f64> = residuals.iter().map(|x| x - mean).collect();
+    let c0 = r.iter().map(|x| x * x).sum::<f64>();
+    if c0 <= 0.0 {
+        return 1.0;
+    }
+    let m = max_lag.clamp(1, n / 4);
+    let mut sum = 0.0;
+    for k in 1..=m {
+        let ck: f64 = (0..n).map(|i| r[i] * r[(i + k) % n]).sum();
+        sum += (1.0 - k as f64 / (m + 1) as f64) * ck / c0;
+    }
+    (1.0 + 2.0 * sum).max(1.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -50,6 +50,28 @@ impl GrayImage {
         }
     }
 
+    /// This image at half resolution into `out`: each pixel the rounded mean of a 2×2 block
+    /// (an odd last row or column is dropped), so that position `u` here is `u/2` there
+    /// (pixel corners at the origin).
+    pub fn half_into(&self, out: &mut GrayImage) {
+        let (w, h) = (self.width / 2, self.height / 2);
+        out.width = w;
+        out.height = h;
+        out.data.clear();
+        out.data.reserve(w * h);
+        for y in 0..h {
+            let r0 = &self.data[2 * y * self.width..];
+            let r1 = &self.data[(2 * y + 1) * self.width..];
+            out.data.extend((0..w).map(|x| {
+                let s = u16::from(r0[2 * x])
+                    + u16::from(r0[2 * x + 1])
+                    + u16::from(r1[2 * x])
+                    + u16::from(r1[2 * x + 1]);
+                ((s + 2) / 4) as u8
+            }));
+        }
+    }
+
     /// The sample at integer array position (clamped to the image).
     #[must_use]
     pub fn at(&self, x: isize, y: isize) -> f64 {
@@ -80,6 +102,61 @@ impl GrayImage {
         }
         Some(s)
     }
+}
+
+/// Correlation of the bicubic interpolations of white pixel noise at two points `d` px apart,
+/// averaged over the direction between them: `ρ(d) = ⟨ρ₁(d·cos α)·ρ₁(d·sin α)⟩_α` with `ρ₁` the
+/// normalised autocorrelation of Keys' kernel. Tabulated once every 0.02 px; 0 beyond 4 px (the
+/// kernel's support is 4 px wide).
+#[must_use]
+pub fn bicubic_noise_correlation(d: f64) -> f64 {
+    static TABLE: std::sync::OnceLock<Vec<f64>> = std::sync::OnceLock::new();
+    const STEP: f64 = 0.02;
+    let table = TABLE.get_or_init(|| {
+        // ρ₁ by the midpoint rule over the kernel's support.
+        let kernel = |x: f64| {
+            let x = x.abs();
+            const A: f64 = -0.5;
+            if x < 1.0 {
+                ((A + 2.0) * x - (A + 3.0)) * x * x + 1.0
+            } else if x < 2.0 {
+                ((A * x - 5.0 * A) * x + 8.0 * A) * x - 4.0 * A
+            } else {
+                0.0
+            }
+        };
+        let rho1 = |d: f64| {
+            let n = 800;
+            let h = 4.0 / n as f64;
+            let (mut num, mut den) = (0.0, 0.0);
+            for i in 0..n {
+                let x = -2.0 + (i as f64 + 0.5) * h;
+                num += kernel(x) * kernel(x + d);
+                den += kernel(x) * kernel(x);
+            }
+            num / den
+        };
+        (0..=200)
+            .map(|k| {
+                let d = k as f64 * STEP;
+                let m = 32;
+                (0..m)
+                    .map(|j| {
+                        let a = std::f64::consts::FRAC_PI_2 * (j as f64 + 0.5) / m as f64;
+                        rho1(d * a.cos()) * rho1(d * a.sin())
+                    })
+                    .sum::<f64>()
+                    / m as f64
+            })
+            .collect()
+    });
+    let x = d.abs() / STEP;
+    let k = x.floor() as usize;
+    if k + 1 >= table.len() {
+        return 0.0;
+    }
+    let f = x - k as f64;
+    table[k] * (1.0 - f) + table[k + 1] * f
 }
 
 /// Keys' cubic convolution weights for taps at −1, 0, 1, 2 from the floor.

@@ -3,13 +3,17 @@
 //! false detections and misses) and 2020b (precise geometric fits).
 //!
 //! frame → grey (8-bit luma) → Sobel gradients and an Immerkær noise estimate → Canny edges
-//! (non-maximum suppression, hysteresis thresholds at 6 and 12 noise σ of the gradient) →
-//! chains of edge pixels with agreeing gradients → arcs split at corners and inflections →
-//! candidate ellipses from arcs that turn ≥ 80° and fit an ellipse (arcs proposing the same
-//! ellipse are grouped) → sub-pixel edge points along the normals of each candidate and a robust
-//! geometric fit, repeated until it settles → validation: edge support all round (≥ 90 % of the
-//! normals), one polarity, contrast between inside and outside, a uniform interior, a small fit
-//! residual, size and axis-ratio limits, fully inside the frame → overlapping detections
+//! (non-maximum suppression, hysteresis thresholds at 6 and 12 noise σ of the gradient), at full
+//! and at half resolution (where a blurred edge several px wide holds together) → chains of edge
+//! pixels with agreeing gradients → arcs split at corners and inflections → candidate ellipses
+//! from arcs that turn ≥ 80° and fit an ellipse (arcs proposing the same ellipse are grouped) →
+//! sub-pixel edge points along the normals of each candidate (a window of ±2.5 edge widths) and
+//! a robust geometric fit, repeated until it settles; the centre's σ from the fit with the
+//! correlation of neighbouring edge points (they share pixels) → validation ([`step`]): edge
+//! support all round (≥ 90 % of the normals), one polarity, a fit residual without the
+//! harmonics a non-ellipse has, and grey levels that are a printed disc: a blurred step between
+//! two flat levels across the edge, a uniform interior, a uniform surround, a disc resolved
+//! against its blur; size and axis-ratio limits, fully inside the frame → overlapping detections
 //! resolved (the better supported one stays).
 //!
 //! Works on black discs on white and white discs on black alike; a target cut by the frame or
@@ -20,6 +24,7 @@ pub mod edges;
 pub mod fit;
 pub mod image;
 pub mod refine;
+pub mod step;
 
 use serde::{Deserialize, Serialize};
 
@@ -40,12 +45,39 @@ pub struct DetectConfig {
     pub border_margin_px: f64,
     /// Fraction of the normals that must show the edge, default 0.9.
     pub min_support: f64,
-    /// Largest RMS of the orthogonal fit residuals (px), default 0.15 (good fits: ≤ 0.09).
+    /// Largest RMS of the orthogonal fit residuals (px), default 0.25 (sharp stills: ≤ 0.13;
+    /// dots of 5–14 px in BoofCV's hand-held H.264 video: up to 0.17).
     pub max_rms_px: f64,
-    /// Least grey-level difference between inside and outside, default 25.
+    /// Largest amplitude of the edge residuals' harmonics 3–6 (which no ellipse has) as a
+    /// fraction of the semi-minor axis, default 0.08: a sector of a coded target's ring (a
+    /// curved box with four corners) reaches 0.13 once it is 4 px wide; dots of real stills stay
+    /// below 0.02, small dots of H.264 video (squared by its 8×8 blocks) below 0.065.
+    pub max_shape_deviation: f64,
+    /// Least grey-level difference between inside and outside, default 50: BoofCV's printed dots
+    /// show 86–208 in its stills and video; the specks, knots and pebbles around them that pass
+    /// every shape test mostly 25–46.
     pub min_contrast: f64,
-    /// Largest spread of the interior as a fraction of the contrast, default 0.2.
+    /// Smallest semi-minor axis in edge widths (`b / w`, the width the σ of the edge's blur),
+    /// default 2: a disc narrower than that is an unresolved spot, whose shape no test can tell.
+    pub min_resolution: f64,
+    /// Largest RMS of the grey levels inside the disc (deeper than two edge widths and 1.5 px)
+    /// about a plane, as a fraction of the contrast (plus two noise σ), default 0.15: a printed
+    /// disc is flat (BoofCV's dots: ≤ 0.04 in the stills, ≤ 0.08 in the H.264 video); the centre
+    /// dot inside an arc of a coded target's ring (≈ 0.4) is not.
     pub max_interior_spread: f64,
+    /// Largest spread of the surround's level just outside the edge (from two edge widths
+    /// beyond it, where the surround shows: see [`step`]), as a fraction of the contrast (plus
+    /// two noise σ), default 0.15: the paper around printed dots stays below 0.1, even between
+    /// the dots of BoofCV's dense hexagonal grid.
+    pub max_ring_spread: f64,
+    /// Largest RMS of the median edge profile about the fitted blurred step, as a fraction of
+    /// the contrast, default 0.1 (real dots: ≤ 0.06): a shaded dome (a screw head, a rivet) is
+    /// no step between two flat levels.
+    pub max_step_residual: f64,
+    /// Only discs of this polarity (`None`: both), default `None`. A calibration grid of black
+    /// dots is found with `Some(Dark)`, as OpenCV's blob detector does by default; white things
+    /// round enough to pass every appearance test (pins, pebbles) then go too.
+    pub polarity: Option<DiscPolarity>,
     /// Canny's low threshold in noise σ of the Sobel response (the high one is twice it),
     /// default 6.
     pub threshold_sigma: f64,
@@ -59,9 +91,14 @@ impl Default for DetectConfig {
             min_axis_ratio: 0.15,
             border_margin_px: 2.0,
             min_support: 0.9,
-            max_rms_px: 0.15,
-            min_contrast: 25.0,
-            max_interior_spread: 0.2,
+            max_rms_px: 0.25,
+            max_shape_deviation: 0.08,
+            min_contrast: 50.0,
+            min_resolution: 2.0,
+            max_interior_spread: 0.15,
+            max_ring_spread: 0.15,
+            max_step_residual: 0.1,
+            polarity: None,
             threshold_sigma: 6.0,
         }
     }
@@ -105,8 +142,12 @@ impl DetectConfig {
         for (field, v) in [
             ("border_margin_px", self.border_margin_px),
             ("max_rms_px", self.max_rms_px),
+            ("max_shape_deviation", self.max_shape_deviation),
+            ("min_resolution", self.min_resolution),
             ("min_contrast", self.min_contrast),
             ("max_interior_spread", self.max_interior_spread),
+            ("max_ring_spread", self.max_ring_spread),
+            ("max_step_residual", self.max_step_residual),
             ("threshold_sigma", self.threshold_sigma),
         ] {
             if !(v.is_finite() && v >= 0.0) {
@@ -148,12 +189,27 @@ pub struct DetectedEllipse {
     pub centre_std_px: f64,
     /// Dark or light disc.
     pub polarity: DiscPolarity,
-    /// Grey-level difference between outside and inside.
+    /// Grey-level difference between outside and inside (positive).
     pub contrast: f64,
+    /// Grey level inside the disc, from the fitted blurred step.
+    pub inside_level: f64,
+    /// Grey level outside the disc, from the fitted blurred step.
+    pub outside_level: f64,
     /// Fraction of the normals that showed the edge.
     pub support: f64,
     /// Edge points used in the fit.
     pub edge_points: usize,
+    /// Edge width: σ of the Gaussian blur across the edge, from the fitted blurred step (px).
+    pub edge_width_px: f64,
+    /// RMS of the median edge profile about the blurred step, relative to the contrast.
+    pub step_residual: f64,
+    /// RMS of the interior about a plane, relative to the contrast (`None`: no interior deeper
+    /// than two edge widths).
+    pub interior_spread: Option<f64>,
+    /// Spread of the surround's level just outside, relative to the contrast.
+    pub ring_spread: f64,
+    /// Amplitude of the edge residuals' harmonics 3–6 (px), which no ellipse has.
+    pub shape_px: f64,
 }
 
 impl DetectedEllipse {
@@ -183,9 +239,10 @@ pub struct DetectDiagnostics {
     pub candidates: usize,
     /// Rejected for too little edge support all round.
     pub rejected_support: usize,
-    /// Rejected for contrast, polarity or a non-uniform interior.
+    /// Rejected for polarity, contrast, resolution, or grey levels that are no disc: no
+    /// blurred step across the edge, a non-uniform interior or surround.
     pub rejected_appearance: usize,
-    /// Rejected for a large fit residual.
+    /// Rejected for a large fit residual or a shape no ellipse has.
     pub rejected_fit: usize,
     /// Rejected for size, shape or the frame border.
     pub rejected_geometry: usize,
@@ -231,6 +288,10 @@ pub struct Detector {
     gray: GrayImage,
     gradients: edges::Gradients,
     flags: Vec<u8>,
+    /// The half-resolution pass's buffers.
+    half: GrayImage,
+    half_gradients: edges::Gradients,
+    half_flags: Vec<u8>,
 }
 
 impl Detector {
@@ -250,6 +311,13 @@ impl Detector {
             },
             gradients: edges::Gradients::empty(),
             flags: Vec::new(),
+            half: GrayImage {
+                width: 0,
+                height: 0,
+                data: Vec::new(),
+            },
+            half_gradients: edges::Gradients::empty(),
+            half_flags: Vec::new(),
         })
     }
 
@@ -297,10 +365,48 @@ impl Detector {
             max_semi_major: config.max_semi_major_fraction * w.min(h) as f64,
             min_axis_ratio: config.min_axis_ratio,
         };
-        let cands = contours::candidates(g, &chains, &limits);
+        let mut cands = contours::candidates(g, &chains, &limits);
+        let mut chain_count = chains.len();
+        // A blurred edge (several px wide) breaks into short, ragged chains at full resolution;
+        // at half resolution it is half as wide and its chains hold together. Candidates found
+        // there (full-resolution semi-minor axis ≥ 5 px) and not already proposed are refined at
+        // full resolution like the others.
+        img.half_into(&mut self.half);
+        let half = &self.half;
+        if half.width >= 16 && half.height >= 16 {
+            let half_sigma = edges::noise_sigma(half);
+            let half_low = (config.threshold_sigma * 3.46 * half_sigma)
+                .round()
+                .clamp(24.0, 30000.0) as u16;
+            edges::sobel_into(half, &mut self.half_gradients);
+            let hg = &self.half_gradients;
+            let strong = edges::suppress_into(
+                hg,
+                half_low,
+                half_low.saturating_mul(2),
+                &mut self.half_flags,
+            );
+            let half_chains = edges::link(hg, &mut self.half_flags, &strong, 8);
+            chain_count += half_chains.len();
+            let half_limits = contours::CandidateLimits {
+                min_semi_minor: (0.5 * config.min_semi_minor_px).max(2.5),
+                max_semi_major: 0.5 * limits.max_semi_major,
+                min_axis_ratio: config.min_axis_ratio,
+            };
+            for mut c in contours::candidates(hg, &half_chains, &half_limits) {
+                let e = &mut c.ellipse;
+                (e.cx, e.cy, e.a, e.b) = (2.0 * e.cx, 2.0 * e.cy, 2.0 * e.a, 2.0 * e.b);
+                if !cands
+                    .iter()
+                    .any(|k| k.polarity == c.polarity && contours::same(&k.ellipse, &c.ellipse))
+                {
+                    cands.push(c);
+                }
+            }
+        }
         let d = &mut result.diagnostics;
         (d.noise_sigma, d.thresholds, d.chains, d.candidates) =
-            (sigma, (low, high), chains.len(), cands.len());
+            (sigma, (low, high), chain_count, cands.len());
         // Slope of a real edge along its normal is far above the noise of the profile
         // derivative (about 2.5 σ): require 5 σ and at least 4 grey levels per px.
         let min_slope = (5.0 * sigma).max(4.0);
@@ -341,7 +447,17 @@ fn validate(
     d: &mut DetectDiagnostics,
 ) -> Option<(f64, DetectedEllipse)> {
     let (w, h) = (img.width, img.height);
-    let Some(r) = refine::refine(img, &cand.ellipse, cand.polarity, min_slope) else {
+    let polarity = if cand.polarity > 0.0 {
+        DiscPolarity::Dark
+    } else {
+        DiscPolarity::Light
+    };
+    // The candidate's polarity is known before any refinement.
+    if config.polarity.is_some_and(|p| p != polarity) {
+        d.rejected_appearance += 1;
+        return None;
+    }
+    let Some(mut r) = refine::refine(img, &cand.ellipse, cand.polarity, min_slope) else {
         d.rejected_support += 1;
         return None;
     };
@@ -364,19 +480,31 @@ fn validate(
         d.rejected_support += 1;
         return None;
     }
+    if r.fit.rms_px > config.max_rms_px || r.shape_px > config.max_shape_deviation * e.b {
+        d.rejected_fit += 1;
+        return None;
+    }
     let (inner, outer, _) = refine::levels(&r.profiles);
-    let contrast = outer - inner;
-    let spread = refine::interior_spread(img, &e).unwrap_or(f64::INFINITY);
+    let width0 = refine::edge_width(&r.profiles);
+    let Some(look) = step::appearance(img, &e, outer - inner, width0, sigma) else {
+        d.rejected_appearance += 1;
+        return None;
+    };
+    let contrast = look.step.contrast();
+    // Spreads are RMS about a fit; the image noise adds about its σ to each.
+    let noise_share = 2.0 * sigma / contrast.abs().max(1e-9);
     if cand.polarity * contrast < config.min_contrast
-        || spread > config.max_interior_spread * contrast.abs() + 2.0 * sigma
+        || e.b < config.min_resolution * look.step.width_px
+        || look.step.residual > config.max_step_residual
+        || look.ring_spread > config.max_ring_spread + noise_share
+        || look
+            .interior_spread
+            .is_some_and(|s| s > config.max_interior_spread + noise_share)
     {
         d.rejected_appearance += 1;
         return None;
     }
-    if r.fit.rms_px > config.max_rms_px {
-        d.rejected_fit += 1;
-        return None;
-    }
+    refine::correlate_centre_std(&mut r);
     let conic = e.to_conic();
     let det = DetectedEllipse {
         cx: e.cx,
@@ -391,14 +519,17 @@ fn validate(
         ],
         rms_px: r.fit.rms_px,
         centre_std_px: r.fit.centre_std_px,
-        polarity: if cand.polarity > 0.0 {
-            DiscPolarity::Dark
-        } else {
-            DiscPolarity::Light
-        },
+        polarity,
         contrast: contrast.abs(),
+        inside_level: look.step.inside,
+        outside_level: look.step.outside,
         support,
         edge_points: r.fit.inliers,
+        edge_width_px: look.step.width_px,
+        step_residual: look.step.residual,
+        interior_spread: look.interior_spread,
+        ring_spread: look.ring_spread,
+        shape_px: r.shape_px,
     };
     Some((
         support * contrast.abs() * (r.fit.inliers as f64).sqrt(),
