@@ -415,6 +415,15 @@ pub fn calibrate(
         refresh_pairs(&mut pairs, &cameras);
     }
 
+    // The selection's settings: the rolling shutter is dropped from them when the neighbours
+    // cannot determine the readout time.
+    let mut selection = config.selection.clone();
+    let frame_interval_s = input
+        .neighbours
+        .iter()
+        .flatten()
+        .map(|n| n.dt_s.abs())
+        .fold(0.0, f64::max);
     let mut previous: Option<Vec<Vec<(usize, usize)>>> = None;
     let mut seen: Vec<Vec<Vec<(usize, usize)>>> = Vec::new();
     let mut iterations = Vec::new();
@@ -425,6 +434,27 @@ pub fn calibrate(
     let mut term_history: Vec<ModelChoice> = Vec::new();
     let mut held: Option<ModelChoice> = None;
     let mut alternation: Option<TermAlternation> = None;
+    // After the first iteration, an adjustment that fails (singular normal equations on
+    // matches made with a camera that drifted) stops the loop with the last good adjustment,
+    // warned, instead of losing the whole calibration.
+    macro_rules! or_stop {
+        ($iteration:expr, $result:expr) => {
+            match $result {
+                Ok(v) => v,
+                Err(e) if last.is_some() => {
+                    stop_reason = format!(
+                        "iteration {} failed ({}); the previous iteration's adjustment is reported",
+                        $iteration,
+                        CalibrateError::from(e)
+                    );
+                    log(&stop_reason);
+                    warnings.push(stop_reason.clone());
+                    break;
+                }
+                Err(e) => return Err(e.into()),
+            }
+        };
+    }
     for iteration in 1..=config.max_iterations {
         // Step 4.
         let obs: Vec<Vec<TargetObservation>> = cameras
@@ -491,7 +521,10 @@ pub fn calibrate(
             frames,
             dropped_frames,
             neighbour_observations,
-        } = target_problem(&m, &cameras, &obs, input, &links, config)?;
+        } = or_stop!(
+            iteration,
+            target_problem(&m, &cameras, &obs, input, &links, config)
+        );
         if !dropped_frames.is_empty() {
             log(&format!(
                 "iteration {iteration}: {} frame(s) left out of the adjustment, fewer than {MIN_FRAME_OBSERVATIONS} target observations: {}",
@@ -506,13 +539,14 @@ pub fn calibrate(
         let reference = problem.points.clone();
         let terms_held = held.is_some();
         let mut selected = match &held {
-            Some(choice) => adjust_terms(
-                &problem,
-                choice,
-                config.selection.rolling_shutter,
-                &config.adjust,
-            )?,
-            None => select_terms(&problem, &config.selection, &config.adjust, log)?,
+            Some(choice) => or_stop!(
+                iteration,
+                adjust_terms(&problem, choice, selection.rolling_shutter, &config.adjust)
+            ),
+            None => or_stop!(
+                iteration,
+                select_terms(&problem, &selection, &config.adjust, log)
+            ),
         };
         if held.is_none()
             && let Some(settled) = settle_alternation(
@@ -522,7 +556,13 @@ pub fn calibrate(
                 &problem,
                 input.image_size,
                 config,
-            )?
+            )
+            .unwrap_or_else(|e| {
+                log(&format!(
+                    "iteration {iteration}: the alternating models could not be compared ({e}); the selection's is kept"
+                ));
+                None
+            })
         {
             let (kept, record) = settled;
             log(&format!(
@@ -554,24 +594,90 @@ pub fn calibrate(
             && selected.rolling_shutter.is_some()
             && !neighbour_observations.is_empty()
         {
-            let held = 1e3 * selected.problem.global[BrownModel::READOUT];
-            selected = estimate_readout_time(
-                selected,
+            let held_ms = 1e3 * selected.problem.global[BrownModel::READOUT];
+            let estimated = estimate_readout_time(
+                selected.clone(),
                 &neighbour_observations,
-                &config.selection,
+                &selection,
                 &config.adjust,
                 log,
-            )?;
-            log(&format!(
-                "iteration {iteration}: readout time from {} observations in the neighbouring video frames (weight {:.3} against the frames'): {:.2} ± {:.2} ms (held at {held:.2} ms in the selection); σ0 {:.4} px",
-                neighbour_observations.len(),
-                selected.neighbour_weight.unwrap_or(1.0),
-                1e3 * selected.problem.global[BrownModel::READOUT],
-                1e3 * selected.readout_std_s.unwrap_or(0.0),
-                selected.precision.sigma0
-            ));
+            );
+            // The neighbours must tie the motions to time: a readout time outside the frame
+            // interval, neighbours weighted next to nothing (their residuals 30 × the
+            // frames'), or an adjustment that fails with them, leave the motions free, and
+            // their drift along u0 + p2 runs the loop away (BoofCV's real video). The rolling
+            // shutter is then left out for good.
+            let refused = match &estimated {
+                Ok(e) => {
+                    let readout_s = e.problem.global[BrownModel::READOUT];
+                    let weight = e.neighbour_weight.unwrap_or(1.0);
+                    log(&format!(
+                        "iteration {iteration}: readout time from {} observations in the neighbouring video frames (weight {weight:.3} against the frames'): {:.2} ± {:.2} ms (held at {held_ms:.2} ms in the selection); σ0 {:.4} px",
+                        neighbour_observations.len(),
+                        1e3 * readout_s,
+                        1e3 * e.readout_std_s.unwrap_or(0.0),
+                        e.precision.sigma0
+                    ));
+                    (!(readout_s > 0.0 && readout_s <= frame_interval_s)
+                        || weight < MIN_NEIGHBOUR_WEIGHT)
+                        .then(|| {
+                            format!(
+                                "{:.2} ms for frames {:.2} ms apart, their weight {weight:.4} against the frames'",
+                                1e3 * readout_s,
+                                1e3 * frame_interval_s
+                            )
+                        })
+                }
+                Err(e) => Some(format!("the adjustment with them failed: {e}")),
+            };
+            match (refused, estimated) {
+                (None, Ok(e)) => selected = e,
+                (why, _) => {
+                    let msg = format!(
+                        "iteration {iteration}: the neighbouring video frames do not determine the readout time ({}): the rolling shutter is left out and the terms selected again",
+                        why.unwrap_or_default()
+                    );
+                    log(&msg);
+                    warnings.push(msg);
+                    selection.rolling_shutter = None;
+                    held_choice_reset(&mut held);
+                    selected = or_stop!(
+                        iteration,
+                        select_terms(&problem, &selection, &config.adjust, log)
+                    );
+                }
+            }
         }
-        free_network_datum(&mut selected.problem, &reference)?;
+        // A guard against a loop that runs away: when this iteration's matches fit several
+        // times worse than the last adjustment's, they were made with a camera or motions
+        // that had drifted (a rolling-shutter model whose motions the data did not fix, on
+        // BoofCV's real video: σ0 0.035 → 6.3 px, then singular). The last good adjustment
+        // is kept and reported.
+        if let Some((prev, _)) = &last
+            && selected.precision.sigma0 > DIVERGENCE_FACTOR * prev.precision.sigma0
+        {
+            stop_reason = format!(
+                "iteration {iteration} diverged: σ0 {:.4} → {:.4} px with {} targets matched (more than {DIVERGENCE_FACTOR} × the last adjustment's); the previous iteration's adjustment is reported",
+                prev.precision.sigma0,
+                selected.precision.sigma0,
+                m.tracks.len()
+            );
+            log(&stop_reason);
+            warnings.push(stop_reason.clone());
+            iterations.push(LoopRecord {
+                adjusted_targets: selected.problem.points.len(),
+                adjusted_observations: selected.precision.observations,
+                sigma0: selected.precision.sigma0,
+                terms: selected.terms.clone(),
+                terms_held,
+                ..record
+            });
+            break;
+        }
+        or_stop!(
+            iteration,
+            free_network_datum(&mut selected.problem, &reference)
+        );
         let intrinsics = intrinsics_of(&selected.problem);
         // How far the camera moved since the last iteration, against its own uncertainty.
         let change = last.as_ref().map(|(prev, _)| {
@@ -663,6 +769,21 @@ pub fn calibrate(
         initial,
     )
 }
+
+/// Below this weight of the neighbouring video frames against the frames (their residuals
+/// over 30 × the frames'), the neighbours do not fix the rolling-shutter motions.
+pub const MIN_NEIGHBOUR_WEIGHT: f64 = 1e-3;
+
+/// A held model with a rolling shutter cannot be kept once the rolling shutter is left out.
+fn held_choice_reset(held: &mut Option<ModelChoice>) {
+    if held.as_ref().is_some_and(|c| c.rolling_shutter) {
+        *held = None;
+    }
+}
+
+/// An iteration whose σ0 exceeds this multiple of the previous adjustment's has diverged
+/// ([`calibrate`] stops and reports the previous one).
+pub const DIVERGENCE_FACTOR: f64 = 3.0;
 
 /// The covariance of the ten intrinsics of an adjustment's precision (without the readout
 /// time of a rolling-shutter model).

@@ -23,27 +23,45 @@ use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
-use pipemeasure::io::colmap::{ModelFormat, Reconstruction, run_colmap_sfm};
+use pipemeasure::io::colmap::{ColmapProgress, ModelFormat, Reconstruction, run_colmap_sfm_with};
+use pipemeasure::io::sidecar::FramesSidecar;
 use pipemeasure::profile::{
     CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, ReadoutTime, StdDev,
     backup_path, validate_device_name,
 };
 use pipemeasure::report::plots;
+use pipemeasure::video::{FrameChoice, extract_frames};
 use serde::Serialize;
 
 use super::matching::detect_named_frames;
-use super::{Globals, usage, values};
+use super::{Globals, progress, usage, values};
 
 /// Arguments of `calibrate`.
-#[derive(Debug, clap::Args)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct Args {
     /// Device name (a name, not a path): the profile is written as `calibrations/NAME.json`
     /// unless `--out` says otherwise.
     #[arg(long)]
     device: String,
-    /// Folder of the lab video's frames (image names in the SfM model are relative to it).
-    #[arg(long)]
-    frames: PathBuf,
+    /// Folder of the lab video's frames (image names in the SfM model are relative to it). With
+    /// `--video`, where the chosen frames are written (default: `VIDEO_STEM_frames` beside the
+    /// video; it must not hold frames already).
+    #[arg(long, required_unless_present = "video")]
+    frames: Option<PathBuf>,
+    /// The lab video itself: decoded with ffmpeg; per second the frame that moves least and is
+    /// sharpest is chosen and written with its two neighbours in the video and
+    /// `frames.json` (which the rolling-shutter readout estimate uses).
+    #[arg(long, conflicts_with = "sfm")]
+    video: Option<PathBuf>,
+    /// With `--video`: frames chosen per second (1 to 30; each the best of its 1/N s).
+    #[arg(long, value_name = "N", requires = "video", default_value_t = 1,
+          value_parser = clap::value_parser!(u32).range(1..=30))]
+    per_second: u32,
+    /// With `--video`: plain extraction at this rate instead of the choice (`1fps` or `1`: the
+    /// frame nearest every second, the paper's extraction).
+    #[arg(long, value_name = "RATE", requires = "video", conflicts_with = "per_second",
+          value_parser = values::frame_rate)]
+    every_frame_at: Option<f64>,
     /// COLMAP sparse model of the frames (text or binary). Without it, COLMAP is run (CPU
     /// features, sequential matcher, mapper) into `--work`.
     #[arg(long)]
@@ -96,6 +114,13 @@ pub struct Args {
     readout_time: Option<f64>,
 }
 
+impl Args {
+    /// The frames folder (given, or where `--video`'s frames were written).
+    fn frames(&self) -> &Path {
+        self.frames.as_deref().unwrap_or(Path::new("."))
+    }
+}
+
 /// `--rolling-shutter`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 enum RollingShutterMode {
@@ -111,7 +136,7 @@ fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
         return Reconstruction::read(dir).with_context(|| format!("--sfm {}", dir.display()));
     }
     let work = args.work.clone().unwrap_or_else(|| {
-        args.frames
+        args.frames()
             .parent()
             .unwrap_or_else(|| Path::new("."))
             .join("colmap")
@@ -128,7 +153,45 @@ fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
             work.display()
         );
     }
-    run_colmap_sfm(&args.frames, &work).with_context(|| "COLMAP sparse reconstruction")
+    // A video's neighbour frames (in FRAMES/neighbours/, listed in frames.json) are not
+    // reconstructed: COLMAP reads the folder recursively, so it gets the frames' list.
+    let sidecar = args.frames().join("frames.json");
+    let list: Option<Vec<String>> = if sidecar.is_file() {
+        Some(
+            FramesSidecar::read(&sidecar)?
+                .frames
+                .into_iter()
+                .map(|f| f.name)
+                .collect(),
+        )
+    } else {
+        None
+    };
+    let bar = progress::bar(0, "COLMAP", quiet);
+    let report = |p: ColmapProgress| match p {
+        ColmapProgress::Features { done, of } => {
+            bar.set_message("COLMAP features");
+            bar.set_length(of as u64);
+            bar.set_position(done as u64);
+        }
+        ColmapProgress::Matching { done, of } => {
+            bar.set_message("COLMAP matching");
+            bar.set_length(of as u64);
+            bar.set_position(done as u64);
+        }
+        ColmapProgress::Registered { images } => {
+            bar.set_message("COLMAP images registered");
+            if let Some(n) = list.as_ref().map(Vec::len) {
+                bar.set_length(n as u64);
+            }
+            bar.set_position(images as u64);
+        }
+        _ => {}
+    };
+    let model = run_colmap_sfm_with(args.frames(), &work, list.as_deref(), &report)
+        .with_context(|| "COLMAP sparse reconstruction");
+    bar.finish_and_clear();
+    model
 }
 
 /// The frame size of the model's (single) camera, checked against every image.
@@ -162,7 +225,7 @@ fn neighbour_detections(
     size: (u32, u32),
     quiet: bool,
 ) -> Result<Vec<Vec<NeighbourDetections>>> {
-    let path = args.frames.join("frames.json");
+    let path = args.frames().join("frames.json");
     if !path.is_file()
         || args.rolling_shutter == RollingShutterMode::Off
         || args.readout_time.is_some()
@@ -188,15 +251,15 @@ fn neighbour_detections(
     if flat.is_empty() {
         return Ok(Vec::new());
     }
-    if let Some(missing) = flat.iter().find(|n| !args.frames.join(n).is_file()) {
+    if let Some(missing) = flat.iter().find(|n| !args.frames().join(n).is_file()) {
         bail!(
             "{}: neighbour frame {missing} is not in {}",
             path.display(),
-            args.frames.display()
+            args.frames().display()
         );
     }
     // The neighbours are frames of the same camera: the model's size, checked before decoding.
-    let mut detected = detect_named_frames(&args.frames, &flat, size, args.min_semi_minor, quiet)
+    let mut detected = detect_named_frames(args.frames(), &flat, size, args.min_semi_minor, quiet)
         .context("detecting the targets of the frames' neighbours")?
         .into_iter();
     Ok(lists
@@ -307,13 +370,13 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
     );
     provenance.insert(
         "frames".into(),
-        serde_json::json!(args.frames.display().to_string()),
+        serde_json::json!(args.frames().display().to_string()),
     );
     provenance.insert("sfm".into(), serde_json::json!(model));
     provenance.insert("iterations".into(), serde_json::json!(cal.iterations.len()));
     provenance.insert("converged".into(), serde_json::json!(cal.converged));
     // Frames from `pipemeasure simulate lab` carry their truth next to them: say so.
-    let truth_path = args.frames.parent().map(|d| d.join("truth.json"));
+    let truth_path = args.frames().parent().map(|d| d.join("truth.json"));
     if let Some(truth) = truth_path
         .filter(|p| p.is_file())
         .and_then(|p| pipemeasure::sim::truth::Truth::read(&p).ok())
@@ -586,10 +649,88 @@ fn check_points_markdown(c: &CheckPointReport) -> String {
     md
 }
 
+/// `--video`: chooses and writes the frames, and returns the arguments with `--frames` set to
+/// their folder.
+fn frames_from_video(args: &Args, video: &Path, quiet: bool) -> Result<Args> {
+    let dir = args.frames.clone().unwrap_or_else(|| {
+        let stem = video
+            .file_stem()
+            .map_or_else(|| "video".into(), |s| s.to_string_lossy().into_owned());
+        video
+            .parent()
+            .unwrap_or(Path::new("."))
+            .join(format!("{stem}_frames"))
+    });
+    let rule = match args.every_frame_at {
+        Some(rate) => FrameChoice::EveryFrameAt(rate),
+        None => FrameChoice::PerSecond(args.per_second),
+    };
+    let bar = progress::bar(0, "decoding the video", quiet);
+    let extraction = extract_frames(video, &dir, rule, &|done, total| match total {
+        None => bar.set_position(done as u64),
+        Some(total) => {
+            bar.set_message("writing the chosen frames");
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }
+    })
+    .with_context(|| format!("--video {}", video.display()))?;
+    bar.finish_and_clear();
+    let record = &extraction.record;
+    if !quiet {
+        let chosen: Vec<_> = record.frames.iter().filter(|f| f.chosen).collect();
+        let plain = pipemeasure::video::choose(
+            &record.frames,
+            record.info.fps,
+            FrameChoice::EveryFrameAt(1.0),
+        );
+        let mean = |ks: &mut dyn Iterator<Item = Option<f64>>| {
+            let v: Vec<f64> = ks.flatten().collect();
+            v.iter().sum::<f64>() / v.len().max(1) as f64
+        };
+        eprintln!(
+            "{}: {} video frames of {}x{} at {:.3} fps; {} chosen ({}) into {}: mean motion {:.2} px per video frame (plain 1 fps extraction: {:.2})",
+            video.display(),
+            record.frames.len(),
+            record.info.width,
+            record.info.height,
+            record.info.fps,
+            chosen.len(),
+            record.rule,
+            dir.display(),
+            mean(&mut chosen.iter().map(|f| f.motion_px)),
+            mean(&mut plain.iter().map(|&k| record.frames[k].motion_px)),
+        );
+        for (i, f) in chosen.iter().enumerate() {
+            eprintln!(
+                "  frame_{:04}.png: video frame {} at {:.3} s, motion {}, sharpness {:.1}",
+                i + 1,
+                f.index,
+                f.time_s,
+                f.motion_px
+                    .map_or_else(|| "not measured".into(), |m| format!("{m:.2} px/frame")),
+                f.sharpness
+            );
+        }
+    }
+    for w in &extraction.warnings {
+        eprintln!("warning: {w}");
+    }
+    Ok(Args {
+        frames: Some(dir),
+        video: None,
+        ..args.clone()
+    })
+}
+
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
     validate_device_name(&args.device).map_err(|e| usage(format!("--device: {e}")))?;
-    if !args.frames.is_dir() {
-        bail!("--frames {}: not a folder", args.frames.display());
+    match &args.video {
+        Some(video) if !video.is_file() => bail!("--video {}: no such file", video.display()),
+        None if !args.frames().is_dir() => {
+            bail!("--frames {}: not a folder", args.frames().display())
+        }
+        _ => {}
     }
     // Read the check points first: a bad file fails before minutes of calibration.
     let check_list = args
@@ -634,11 +775,20 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     for dir in [&args.report, &args.network].into_iter().flatten() {
         check_writable_dir(dir)?;
     }
+    // The video's frames once every destination is known to be writable.
+    let from_video;
+    let args = match &args.video {
+        Some(video) => {
+            from_video = frames_from_video(args, video, globals.quiet)?;
+            &from_video
+        }
+        None => args,
+    };
     let model = sfm_model(args, globals.quiet)?;
-    let names = check_frames(&model, &args.frames)?;
+    let names = check_frames(&model, args.frames())?;
     let size = image_size(&model)?;
     let detections = detect_named_frames(
-        &args.frames,
+        args.frames(),
         &names,
         size,
         args.min_semi_minor,

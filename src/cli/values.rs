@@ -67,6 +67,17 @@ pub fn readout_ms(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A frame rate: `1fps`, `0.5fps` or a bare number, above 0 and at most 30 frames/s.
+pub fn frame_rate(s: &str) -> Result<f64, String> {
+    let number_part = s.trim().strip_suffix("fps").unwrap_or(s.trim());
+    let v = positive(number_part)?;
+    if v <= 30.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} frames/s: must be at most 30"))
+    }
+}
+
 /// `X,Y,Z`: three finite numbers.
 pub fn point(s: &str) -> Result<Vector3<f64>, String> {
     let v: Vec<f64> = s.split(',').map(number).collect::<Result<_, _>>()?;

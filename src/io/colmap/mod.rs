@@ -8,7 +8,10 @@ mod binary;
 mod run;
 mod text;
 
-pub use run::{ColmapRunError, colmap_available, run_colmap_sfm};
+pub use run::{
+    ColmapProgress, ColmapRunError, colmap_available, parse_progress, run_colmap_sfm,
+    run_colmap_sfm_with,
+};
 
 use std::collections::BTreeMap;
 use std::path::Path;

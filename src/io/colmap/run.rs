@@ -53,26 +53,131 @@ pub fn colmap_available() -> bool {
         .is_ok_and(|o| o.status.success())
 }
 
-fn step(name: &'static str, args: &[&str]) -> Result<(), ColmapRunError> {
-    let out = Command::new("colmap")
+/// Where a COLMAP run is, read from its own log (COLMAP 3.8's messages).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum ColmapProgress {
+    /// `feature_extractor`: "Processed file [i/n]".
+    Features {
+        /// Images done.
+        done: usize,
+        /// Images in all.
+        of: usize,
+    },
+    /// `sequential_matcher`: "Matching image [i/n]".
+    Matching {
+        /// Images matched.
+        done: usize,
+        /// Images in all.
+        of: usize,
+    },
+    /// `mapper`: "Initializing with image pair" (2), then "Registering image #id (k)".
+    Registered {
+        /// Images registered in the current model.
+        images: usize,
+    },
+}
+
+/// Parses one line of COLMAP's log into progress.
+#[must_use]
+pub fn parse_progress(line: &str) -> Option<ColmapProgress> {
+    let line = line.trim();
+    let counts = |rest: &str| -> Option<(usize, usize)> {
+        let inner = rest.strip_prefix('[')?.split(']').next()?;
+        let (done, of) = inner.split_once('/')?;
+        Some((done.trim().parse().ok()?, of.trim().parse().ok()?))
+    };
+    if let Some(rest) = line.strip_prefix("Processed file ") {
+        let (done, of) = counts(rest)?;
+        return Some(ColmapProgress::Features { done, of });
+    }
+    if let Some(rest) = line.strip_prefix("Matching image ") {
+        let (done, of) = counts(rest)?;
+        return Some(ColmapProgress::Matching { done, of });
+    }
+    if line.starts_with("Initializing with image pair") {
+        return Some(ColmapProgress::Registered { images: 2 });
+    }
+    if let Some(rest) = line.strip_prefix("Registering image #") {
+        let k = rest.split_once('(')?.1.strip_suffix(')')?;
+        return Some(ColmapProgress::Registered {
+            images: k.trim().parse().ok()?,
+        });
+    }
+    None
+}
+
+/// Runs one COLMAP step, reporting the progress its log shows.
+fn step(
+    name: &'static str,
+    args: &[&str],
+    progress: &dyn Fn(ColmapProgress),
+) -> Result<(), ColmapRunError> {
+    use std::io::BufRead;
+    let mut child = Command::new("colmap")
         .arg(name)
         .args(args)
         .env("QT_QPA_PLATFORM", "offscreen")
-        .output()
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
         .map_err(|_| ColmapRunError::NotInstalled)?;
-    if out.status.success() {
+    // Both streams are read on their own threads (a full pipe would stall COLMAP); their lines
+    // come here in the order read.
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let readers: Vec<_> = [
+        child
+            .stdout
+            .take()
+            .map(|s| Box::new(s) as Box<dyn std::io::Read + Send>),
+        child
+            .stderr
+            .take()
+            .map(|s| Box::new(s) as Box<dyn std::io::Read + Send>),
+    ]
+    .into_iter()
+    .flatten()
+    .map(|stream| {
+        let tx = tx.clone();
+        std::thread::spawn(move || {
+            for line in std::io::BufReader::new(stream)
+                .lines()
+                .map_while(Result::ok)
+            {
+                if tx.send(line).is_err() {
+                    break;
+                }
+            }
+        })
+    })
+    .collect();
+    drop(tx);
+    let mut tail: std::collections::VecDeque<String> = std::collections::VecDeque::new();
+    for line in rx {
+        if let Some(p) = parse_progress(&line) {
+            progress(p);
+        }
+        if tail.len() == 15 {
+            tail.pop_front();
+        }
+        tail.push_back(line);
+    }
+    for r in readers {
+        let _ = r.join();
+    }
+    let status = child.wait().map_err(|e| ColmapRunError::Failed {
+        step: name,
+        status: "wait".into(),
+        stderr: e.to_string(),
+    })?;
+    if status.success() {
         return Ok(());
     }
-    let text = format!(
-        "{}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let tail: Vec<&str> = text.lines().rev().take(15).collect();
     Err(ColmapRunError::Failed {
         step: name,
-        status: out.status.to_string(),
-        stderr: tail.into_iter().rev().collect::<Vec<_>>().join("\n"),
+        status: status.to_string(),
+        stderr: tail.into_iter().collect::<Vec<_>>().join("\n"),
     })
 }
 
@@ -84,6 +189,22 @@ fn step(name: &'static str, args: &[&str]) -> Result<(), ColmapRunError> {
 ///
 /// [`ColmapRunError`].
 pub fn run_colmap_sfm(images: &Path, work: &Path) -> Result<Reconstruction, ColmapRunError> {
+    run_colmap_sfm_with(images, work, None, &|_| {})
+}
+
+/// [`run_colmap_sfm`] on the images named in `image_list` only (relative to `images`; all
+/// images under it, recursively, when `None`: COLMAP reads subfolders, so a video's
+/// neighbour frames must be left out this way), reporting progress from COLMAP's log.
+///
+/// # Errors
+///
+/// [`ColmapRunError`].
+pub fn run_colmap_sfm_with(
+    images: &Path,
+    work: &Path,
+    image_list: Option<&[String]>,
+    progress: &dyn Fn(ColmapProgress),
+) -> Result<Reconstruction, ColmapRunError> {
     if !colmap_available() {
         return Err(ColmapRunError::NotInstalled);
     }
@@ -101,24 +222,34 @@ pub fn run_colmap_sfm(images: &Path, work: &Path) -> Result<Reconstruction, Colm
     }
     let s = |p: &Path| p.to_string_lossy().into_owned();
     let (db_s, images_s, sparse_s) = (s(&db), s(images), s(&sparse));
-    step(
-        "feature_extractor",
-        &[
-            "--database_path",
-            &db_s,
-            "--image_path",
-            &images_s,
-            "--ImageReader.single_camera",
-            "1",
-            "--ImageReader.camera_model",
-            "SIMPLE_RADIAL",
-            "--SiftExtraction.use_gpu",
-            "0",
-        ],
-    )?;
+    let list_path = work.join("image_list.txt");
+    let list_s = s(&list_path);
+    let mut extract = vec![
+        "--database_path",
+        &db_s,
+        "--image_path",
+        &images_s,
+        "--ImageReader.single_camera",
+        "1",
+        "--ImageReader.camera_model",
+        "SIMPLE_RADIAL",
+        "--SiftExtraction.use_gpu",
+        "0",
+    ];
+    if let Some(list) = image_list {
+        let mut text = list.join("\n");
+        text.push('\n');
+        std::fs::write(&list_path, text).map_err(|e| ColmapRunError::Io {
+            path: list_path.clone(),
+            source: e,
+        })?;
+        extract.extend(["--image_list_path", &list_s]);
+    }
+    step("feature_extractor", &extract, progress)?;
     step(
         "sequential_matcher",
         &["--database_path", &db_s, "--SiftMatching.use_gpu", "0"],
+        progress,
     )?;
     step(
         "mapper",
@@ -130,6 +261,7 @@ pub fn run_colmap_sfm(images: &Path, work: &Path) -> Result<Reconstruction, Colm
             "--output_path",
             &sparse_s,
         ],
+        progress,
     )?;
     let mut best: Option<Reconstruction> = None;
     let entries = std::fs::read_dir(&sparse).map_err(|e| ColmapRunError::Io {
@@ -151,4 +283,31 @@ pub fn run_colmap_sfm(images: &Path, work: &Path) -> Result<Reconstruction, Colm
         }
     }
     best.ok_or(ColmapRunError::NoModel(sparse))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn colmap_log_lines_give_progress() {
+        assert_eq!(
+            parse_progress("Processed file [3/42]"),
+            Some(ColmapProgress::Features { done: 3, of: 42 })
+        );
+        assert_eq!(
+            parse_progress("Matching image [12/42] in 0.244s"),
+            Some(ColmapProgress::Matching { done: 12, of: 42 })
+        );
+        assert_eq!(
+            parse_progress("Initializing with image pair #1 and #3"),
+            Some(ColmapProgress::Registered { images: 2 })
+        );
+        assert_eq!(
+            parse_progress("Registering image #17 (9)"),
+            Some(ColmapProgress::Registered { images: 9 })
+        );
+        assert_eq!(parse_progress("  => Image sees 31 / 273 points"), None);
+        assert_eq!(parse_progress("Processed file [x/42]"), None);
+    }
 }
