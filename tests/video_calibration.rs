@@ -87,9 +87,11 @@ fn a_rolling_shutter_video_calibrates_to_the_true_camera_and_readout_time() {
         .expect("readout time in the profile");
     assert!(readout.estimated, "{log}");
     let relative = (readout.readout_s - true_readout).abs() / true_readout;
+    let z = (readout.readout_s - true_readout).abs() / readout.readout_std_s;
     eprintln!(
-        "readout {:.3} ms (true {:.3} ms, {:.1} %)",
+        "readout {:.3} ± {:.3} ms (true {:.3} ms, {:.1} %, {z:.2} σ)",
         1e3 * readout.readout_s,
+        1e3 * readout.readout_std_s,
         1e3 * true_readout,
         100.0 * relative
     );

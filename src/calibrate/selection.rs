@@ -690,7 +690,16 @@ pub fn estimate_readout_time(
         adjust,
         log,
     );
-    let readout_std_s = fitted.precision.global_std()[BrownModel::READOUT];
+    // The neighbours' errors are mostly one motion error per neighbour frame (tremor bends
+    // the first-order motion over 1/fps), not independent per target: the adjustment's σ of
+    // the readout time, which assumes independence, is scaled by the design effect of those
+    // clusters (Kish 1965: 1 + (m̄ − 1)·ρ, with the regressor taken as fully correlated
+    // within a frame, which is conservative).
+    let deff = neighbour_design_effect(&fitted.problem);
+    let readout_std_s = fitted.precision.global_std()[BrownModel::READOUT] * deff.sqrt();
+    log(&format!(
+        "readout time σ scaled by √{deff:.1}: the neighbours' residuals are correlated within each neighbour frame"
+    ));
     Ok(Selected {
         terms,
         steps,
@@ -707,6 +716,56 @@ pub fn estimate_readout_time(
         neighbour_weight: Some(weight),
         ..selected
     })
+}
+
+/// The design effect `1 + (m̄ − 1)·ρ` of the neighbour observations (`time_offset_s ≠ 0`)
+/// clustered by neighbour frame (camera and side): ρ the intra-cluster correlation of their
+/// residuals (one-way analysis of variance, u and v pooled, clamped to [0, 1]), m̄ the mean
+/// cluster size. 1 without neighbours or with fewer than two clusters.
+fn neighbour_design_effect(problem: &Problem<BrownModel>) -> f64 {
+    let mut clusters: std::collections::BTreeMap<(usize, bool), Vec<Vector2<f64>>> =
+        std::collections::BTreeMap::new();
+    for o in &problem.observations {
+        if o.time_offset_s != 0.0
+            && let Some(r) = problem.residual(o)
+        {
+            clusters
+                .entry((o.camera, o.time_offset_s > 0.0))
+                .or_default()
+                .push(r);
+        }
+    }
+    let clusters: Vec<Vec<Vector2<f64>>> = clusters.into_values().collect();
+    design_effect(&clusters)
+}
+
+/// Kish's design effect `1 + (m̄ − 1)·ρ` of 2-D residuals in `clusters` (those of fewer than two
+/// left out); 1 with fewer than two clusters.
+fn design_effect(clusters: &[Vec<Vector2<f64>>]) -> f64 {
+    let clusters: Vec<&Vec<Vector2<f64>>> = clusters.iter().filter(|c| c.len() >= 2).collect();
+    if clusters.len() < 2 {
+        return 1.0;
+    }
+    let n: usize = clusters.iter().map(|c| c.len()).sum();
+    let k = clusters.len();
+    let mean_size = n as f64 / k as f64;
+    let grand = clusters.iter().copied().flatten().sum::<Vector2<f64>>() / n as f64;
+    // Between- and within-cluster mean squares, per coordinate, pooled over u and v.
+    let (mut ss_between, mut ss_within) = (0.0, 0.0);
+    for c in clusters {
+        let mean = c.iter().sum::<Vector2<f64>>() / c.len() as f64;
+        ss_between += c.len() as f64 * (mean - grand).norm_squared();
+        ss_within += c.iter().map(|r| (r - mean).norm_squared()).sum::<f64>();
+    }
+    let ms_between = ss_between / (2.0 * (k - 1) as f64);
+    let ms_within = ss_within / (2.0 * (n - k) as f64).max(1.0);
+    let between = ((ms_between - ms_within) / mean_size).max(0.0);
+    let rho = if between + ms_within > 0.0 {
+        (between / (between + ms_within)).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    1.0 + (mean_size - 1.0) * rho
 }
 
 /// RMS residual per coordinate of `observations` in `problem` (px).
@@ -793,4 +852,35 @@ fn names_list(terms: &[Term], separator: &str) -> String {
         .map(|t| t.name())
         .collect::<Vec<_>>()
         .join(separator)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn the_design_effect_counts_a_common_error_per_cluster_once() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut noise = || Vector2::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        // Clusters of 20: independent noise gives about 1; one error per cluster and nothing
+        // of its own gives m = 20 exactly; a common error as large as the own noise gives
+        // ρ = 1/2 and 1 + 19/2 = 10.5.
+        let independent: Vec<Vec<Vector2<f64>>> = (0..50)
+            .map(|_| (0..20).map(|_| noise()).collect())
+            .collect();
+        let common: Vec<Vec<Vector2<f64>>> = (0..50).map(|_| vec![noise(); 20]).collect();
+        let half: Vec<Vec<Vector2<f64>>> = (0..400)
+            .map(|_| {
+                let e = noise();
+                (0..20).map(|_| e + noise()).collect()
+            })
+            .collect();
+        let d = design_effect(&independent);
+        assert!((0.5..=1.6).contains(&d), "{d}");
+        assert!((design_effect(&common) - 20.0).abs() < 1e-9);
+        let d = design_effect(&half);
+        assert!((d - 10.5).abs() < 1.5, "{d}");
+        assert_eq!(design_effect(&common[..1]), 1.0);
+    }
 }
