@@ -384,29 +384,16 @@ fn calibrates_from_the_video_itself(tmp: &Path, every: &pipemeasure::profile::Pr
     let choice: pipemeasure::video::ChoiceRecord =
         serde_json::from_str(&std::fs::read_to_string(tmp.join("chosen/choice.json")).unwrap())
             .unwrap();
-    let mean = |ks: &[usize]| {
-        ks.iter()
-            .map(|&k| choice.frames[k].motion_px.unwrap())
-            .sum::<f64>()
-            / ks.len() as f64
-    };
-    let chosen: Vec<usize> = choice
-        .frames
-        .iter()
-        .filter(|f| f.chosen)
-        .map(|f| f.index)
-        .collect();
-    let plain = pipemeasure::video::choose(
-        &choice.frames,
-        choice.info.fps,
-        pipemeasure::video::FrameChoice::EveryFrameAt(1.0),
+    assert!(
+        choice
+            .frames
+            .iter()
+            .filter(|f| f.chosen)
+            .all(|f| f.motion_px.is_some())
     );
-    eprintln!(
-        "mean motion: chosen {:.2} px/frame, plain 1 fps {:.2}",
-        mean(&chosen),
-        mean(&plain)
-    );
-    assert!(mean(&chosen) < mean(&plain));
+    let (chosen, plain) = choice.mean_motion_px();
+    eprintln!("mean motion: chosen {chosen:.2} px/frame, plain 1 fps {plain:.2}");
+    assert!(chosen < plain);
     let boofcv = boofcv_dot_calibration();
     let size = (640, 480);
     let d_every = projection_difference_rotated(&every.intrinsics, &boofcv, size);

@@ -595,19 +595,18 @@ pub fn calibrate(
             && !neighbour_observations.is_empty()
         {
             let held_ms = 1e3 * selected.problem.global[BrownModel::READOUT];
-            let estimated = estimate_readout_time(
-                selected.clone(),
-                &neighbour_observations,
-                &selection,
-                &config.adjust,
-                log,
-            );
             // The neighbours must tie the motions to time: a readout time outside the frame
             // interval, neighbours weighted next to nothing (their residuals 100 × the
             // frames'), or an adjustment that fails with them, leave the motions free, and
             // their drift along u0 + p2 runs the loop away (BoofCV's real video). The rolling
             // shutter is then left out for good.
-            let refused = match &estimated {
+            let accepted = match estimate_readout_time(
+                selected,
+                &neighbour_observations,
+                &selection,
+                &config.adjust,
+                log,
+            ) {
                 Ok(e) => {
                     let readout_s = e.problem.global[BrownModel::READOUT];
                     let weight = e.neighbour_weight.unwrap_or(1.0);
@@ -618,35 +617,37 @@ pub fn calibrate(
                         1e3 * e.readout_std_s.unwrap_or(0.0),
                         e.precision.sigma0
                     ));
-                    (!(readout_s > 0.0 && readout_s <= frame_interval_s)
-                        || weight < MIN_NEIGHBOUR_WEIGHT)
-                        .then(|| {
-                            format!(
-                                "{:.2} ms for frames {:.2} ms apart, their weight {weight:.4} against the frames'",
-                                1e3 * readout_s,
-                                1e3 * frame_interval_s
-                            )
-                        })
+                    if readout_s > 0.0
+                        && readout_s <= frame_interval_s
+                        && weight >= MIN_NEIGHBOUR_WEIGHT
+                    {
+                        Ok(e)
+                    } else {
+                        Err(format!(
+                            "{:.2} ms for frames {:.2} ms apart, their weight {weight:.4} against the frames'",
+                            1e3 * readout_s,
+                            1e3 * frame_interval_s
+                        ))
+                    }
                 }
-                Err(e) => Some(format!("the adjustment with them failed: {e}")),
+                Err(e) => Err(format!("the adjustment with them failed: {e}")),
             };
-            match (refused, estimated) {
-                (None, Ok(e)) => selected = e,
-                (why, _) => {
+            selected = match accepted {
+                Ok(e) => e,
+                Err(why) => {
                     let msg = format!(
-                        "iteration {iteration}: the neighbouring video frames do not determine the readout time ({}): the rolling shutter is left out and the terms selected again",
-                        why.unwrap_or_default()
+                        "iteration {iteration}: the neighbouring video frames do not determine the readout time ({why}): the rolling shutter is left out and the terms selected again"
                     );
                     log(&msg);
                     warnings.push(msg);
                     selection.rolling_shutter = None;
                     held_choice_reset(&mut held);
-                    selected = or_stop!(
+                    or_stop!(
                         iteration,
                         select_terms(&problem, &selection, &config.adjust, log)
-                    );
+                    )
                 }
-            }
+            };
         }
         // A guard against a loop that runs away: when this iteration's matches fit several
         // times worse than the last adjustment's, they were made with a camera or motions

@@ -679,15 +679,7 @@ fn frames_from_video(args: &Args, video: &Path, quiet: bool) -> Result<Args> {
     let record = &extraction.record;
     if !quiet {
         let chosen: Vec<_> = record.frames.iter().filter(|f| f.chosen).collect();
-        let plain = pipemeasure::video::choose(
-            &record.frames,
-            record.info.fps,
-            FrameChoice::EveryFrameAt(1.0),
-        );
-        let mean = |ks: &mut dyn Iterator<Item = Option<f64>>| {
-            let v: Vec<f64> = ks.flatten().collect();
-            v.iter().sum::<f64>() / v.len().max(1) as f64
-        };
+        let (chosen_motion, plain_motion) = record.mean_motion_px();
         eprintln!(
             "{}: {} video frames of {}x{} at {:.3} fps; {} chosen ({}) into {}: mean motion {:.2} px per video frame (plain 1 fps extraction: {:.2})",
             video.display(),
@@ -698,8 +690,8 @@ fn frames_from_video(args: &Args, video: &Path, quiet: bool) -> Result<Args> {
             chosen.len(),
             record.rule,
             dir.display(),
-            mean(&mut chosen.iter().map(|f| f.motion_px)),
-            mean(&mut plain.iter().map(|&k| record.frames[k].motion_px)),
+            chosen_motion,
+            plain_motion,
         );
         for (i, f) in chosen.iter().enumerate() {
             eprintln!(

@@ -25,6 +25,8 @@ use std::process::{Command, Stdio};
 
 use serde::{Deserialize, Serialize};
 
+use crate::io::atomic::StagedDir;
+use crate::io::error::WriteError;
 use crate::io::sidecar::{FRAMES_SCHEMA, FramesEntry, FramesSidecar, NeighbourEntry};
 use flow::{Grey, Pyramid, apparent_motion, sharpness};
 
@@ -79,6 +81,15 @@ pub enum VideoError {
     },
 }
 
+impl From<WriteError> for VideoError {
+    fn from(e: WriteError) -> Self {
+        VideoError::Write {
+            path: e.path,
+            source: e.source,
+        }
+    }
+}
+
 /// The video stream's geometry and rate.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VideoInfo {
@@ -128,6 +139,24 @@ pub struct ChoiceRecord {
     pub rule: String,
     /// Every video frame's measures.
     pub frames: Vec<FrameMeasure>,
+}
+
+impl ChoiceRecord {
+    /// The mean measured motion (px per video frame) of the chosen frames and of the frames
+    /// plain 1 fps extraction would take from the same video, frames without a measured
+    /// motion left out (NaN when none has one).
+    #[must_use]
+    pub fn mean_motion_px(&self) -> (f64, f64) {
+        let mean = |ks: &mut dyn Iterator<Item = usize>| {
+            let v: Vec<f64> = ks.filter_map(|k| self.frames[k].motion_px).collect();
+            v.iter().sum::<f64>() / v.len() as f64
+        };
+        let plain = choose(&self.frames, self.info.fps, FrameChoice::EveryFrameAt(1.0));
+        (
+            mean(&mut self.frames.iter().filter(|f| f.chosen).map(|f| f.index)),
+            mean(&mut plain.into_iter()),
+        )
+    }
 }
 
 /// The frames written and what was noticed.
@@ -576,7 +605,9 @@ fn motion_warnings(measures: &[FrameMeasure], chosen: &[usize], info: &VideoInfo
     )]
 }
 
-/// Writes the chosen frames and their neighbours (PNG, full size) from a second decoding.
+/// Writes the chosen frames and their neighbours (PNG, full size) from a second decoding,
+/// with the two records, into a folder staged beside `dir` ([`StagedDir`]: nothing
+/// half-written stays behind) and moved into place at the end.
 fn write_frames(
     video: &Path,
     info: &VideoInfo,
@@ -597,52 +628,8 @@ fn write_frames(
                 .into(),
         });
     }
-    let parent = dir
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(parent).map_err(|e| write_err(parent, e))?;
-    let name = dir
-        .file_name()
-        .map_or_else(|| "frames".into(), |n| n.to_string_lossy().into_owned());
-    let staging = parent.join(format!(".{name}.partial"));
-    if staging.exists() {
-        std::fs::remove_dir_all(&staging).map_err(|e| write_err(&staging, e))?;
-    }
-    let staged = fill_staging(video, info, &staging, chosen, sidecar, record, progress);
-    if let Err(e) = staged {
-        // Nothing half-written stays behind.
-        let _ = std::fs::remove_dir_all(&staging);
-        return Err(e);
-    }
-    if dir.exists() {
-        // An empty or frame-less folder the user made: move the files in.
-        for entry in std::fs::read_dir(&staging).map_err(|e| write_err(&staging, e))? {
-            let entry = entry.map_err(|e| write_err(&staging, e))?;
-            let dest = dir.join(entry.file_name());
-            std::fs::rename(entry.path(), &dest).map_err(|e| write_err(&dest, e))?;
-        }
-        std::fs::remove_dir(&staging).map_err(|e| write_err(&staging, e))?;
-    } else {
-        std::fs::rename(&staging, dir).map_err(|e| write_err(dir, e))?;
-    }
-    Ok(())
-}
-
-/// Writes the frames, their neighbours and the two records into `staging`.
-fn fill_staging(
-    video: &Path,
-    info: &VideoInfo,
-    staging: &Path,
-    chosen: &[usize],
-    sidecar: &FramesSidecar,
-    record: &ChoiceRecord,
-    progress: &dyn Fn(usize),
-) -> Result<(), VideoError> {
-    let write_err = |path: &Path, source| VideoError::Write {
-        path: path.into(),
-        source,
-    };
+    let staged = StagedDir::new(dir)?;
+    let staging = staged.path();
     std::fs::create_dir_all(staging.join("neighbours"))
         .map_err(|e| write_err(&staging.join("neighbours"), e))?;
     // Each wanted video frame and the files it becomes (a frame may be one chosen frame's
@@ -681,6 +668,7 @@ fn fill_staging(
     }
     write_json(&staging.join("frames.json"), sidecar)?;
     write_json(&staging.join("choice.json"), record)?;
+    staged.commit()?;
     Ok(())
 }
 
