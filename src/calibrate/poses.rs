@@ -11,12 +11,20 @@
 //! inliers. The pairs' `F` then come from the adjusted cameras ([`super::pipeline::
 //! refresh_pairs`]): on near-planar scenes the features' robust `F` is ill-conditioned, the
 //! poses' is not.
+//!
+//! Frames from a rolling-shutter video ([`consistent_poses_rolling`]): with the device's
+//! readout time known (its profile), each frame also gets its motion during the readout (an
+//! angular and a linear velocity, [`crate::camera::rolling`]; Hedborg et al. 2012, "Rolling
+//! shutter bundle adjustment", with the readout calibrated), adjusted with the poses, so that
+//! whatever is triangulated afterwards can use each row's own pose ([`RollingPoses::row_pose`]).
 
 use super::pipeline::{CalibrateError, adjust_feature_tracks, feature_problem, refresh_pairs};
 use super::refine::{Algorithm1, RefineConfig, algorithm1, retriangulate};
 use super::views::FrameCamera;
-use crate::adjust::{AdjustConfig, AdjustSummary};
+use crate::adjust::{AdjustConfig, AdjustSummary, BrownModel, Loss, free_network_datum};
 use crate::camera::Intrinsics;
+use crate::camera::rolling::{Motion, RowTiming, exp_so3};
+use crate::geometry::Rigid3;
 use crate::io::colmap::Reconstruction;
 
 /// Algorithm 1 on poses re-adjusted to fixed intrinsics.
@@ -31,6 +39,46 @@ pub struct ConsistentPoses {
     pub sigma_after_px: f64,
     /// The last adjustment's summary.
     pub summary: AdjustSummary,
+    /// Each frame's motion during the readout, when the poses were adjusted with a rolling
+    /// shutter ([`consistent_poses_rolling`]).
+    pub rolling: Option<RollingPoses>,
+}
+
+/// The frames' rolling-shutter motions about their re-adjusted poses.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RollingPoses {
+    /// The row timing (the device's readout time, the frames' height).
+    pub timing: RowTiming,
+    /// Per frame (order of [`Algorithm1::frames`]), its motion (camera frame, the model's units).
+    pub motions: Vec<Motion>,
+    /// The adjustment's robust reprojection σ (px) with the motions, `sqrt(median r² / 1.3863)`.
+    pub sigma_px: f64,
+    /// The same adjustment without them (the global-shutter round before), for the log.
+    pub sigma_global_px: f64,
+}
+
+impl RollingPoses {
+    /// The pose of frame `frame`'s row at pixel height `v` (observed pixels): the frame's pose
+    /// `pose` moved by the frame's motion over the row's time from the frame time,
+    /// `R(s) = exp(s·[ω]×)·R`, `T(s) = exp(s·[ω]×)·T + s·ν`.
+    #[must_use]
+    pub fn row_pose(&self, frame: usize, pose: &Rigid3, v: f64) -> Rigid3 {
+        let s = self.timing.time_of_row(v, 0.0);
+        self.motions
+            .get(frame)
+            .map_or(*pose, |m| pose_after(pose, m, s))
+    }
+}
+
+/// `pose` moved by `motion` over `s` seconds ([`crate::camera::rolling::Motion::point_at`]).
+#[must_use]
+pub fn pose_after(pose: &Rigid3, motion: &Motion, s: f64) -> Rigid3 {
+    let r = exp_so3(&(motion.angular * s));
+    let rotation = nalgebra::UnitQuaternion::from_matrix(
+        &(r * pose.rotation.to_rotation_matrix().into_inner()),
+    );
+    let translation = r * pose.translation.vector + motion.linear * s;
+    Rigid3::from_parts(translation.into(), rotation)
 }
 
 impl ConsistentPoses {
@@ -65,7 +113,74 @@ pub fn consistent_poses(
         sigma_after_px: a1.reprojection_sigma,
         a1,
         summary,
+        rolling: None,
     })
+}
+
+/// [`consistent_poses`] for frames of a rolling-shutter video with the device's row timing
+/// known: after the global-shutter rounds, the inlier feature tracks are adjusted once more
+/// with a motion per frame (6 unknowns; the intrinsics and the readout time held), and the
+/// poses are the frame-time (middle-row) poses of that adjustment. Its frame is the model's
+/// (free network aligned to the tracks' points), so the motions are in the model's units.
+///
+/// # Errors
+///
+/// As [`consistent_poses`]; also when the rolling-shutter adjustment fails.
+pub fn consistent_poses_rolling(
+    model: &Reconstruction,
+    intrinsics: &Intrinsics,
+    timing: RowTiming,
+    refine: &RefineConfig,
+    adjust: &AdjustConfig,
+) -> Result<ConsistentPoses, CalibrateError> {
+    let mut poses = consistent_poses(model, intrinsics, refine, adjust)?;
+    let a1 = &mut poses.a1;
+    let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
+    let global = feature_problem(model, a1, &cameras)?;
+    let sigma_global_px = robust_sigma(&global);
+    let mut problem = global.with_rolling_shutter(timing.height_px, timing.readout_s);
+    problem.fixed.global = (0..problem.global.len()).collect();
+    let reference = problem.points.clone();
+    let config = AdjustConfig {
+        loss: Loss::Huber(3.0 * a1.reprojection_sigma.max(0.1)),
+        ..*adjust
+    };
+    let summary = crate::adjust::bundle_adjust(&mut problem, &config)?;
+    free_network_datum(&mut problem, &reference)?;
+    let sigma_px = robust_sigma(&problem);
+    for (frame, pose) in a1.frames.iter_mut().zip(&problem.cam_from_world) {
+        frame.camera.cam_from_world = *pose;
+    }
+    let motions = problem.local.chunks(6).map(Motion::from_slice).collect();
+    retriangulate(model, a1, refine);
+    let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
+    refresh_pairs(&mut a1.pairs, &cameras);
+    poses.summary = summary;
+    poses.rolling = Some(RollingPoses {
+        timing,
+        motions,
+        sigma_px,
+        sigma_global_px,
+    });
+    Ok(poses)
+}
+
+/// Robust reprojection σ of a problem's observations, `sqrt(median r² / 1.3863)` (the χ²₂
+/// median), as Algorithm 1 reports it.
+fn robust_sigma(problem: &crate::adjust::Problem<BrownModel>) -> f64 {
+    let mut r2: Vec<f64> = problem
+        .observations
+        .iter()
+        .filter_map(|o| problem.residual(o))
+        .map(|r| r.norm_squared())
+        .filter(|r| r.is_finite())
+        .collect();
+    if r2.is_empty() {
+        return f64::NAN;
+    }
+    let mid = r2.len() / 2;
+    let (_, m, _) = r2.select_nth_unstable_by(mid, f64::total_cmp);
+    (*m / 1.3863).sqrt()
 }
 
 /// One round: the inlier tracks adjusted with the frames' intrinsics fixed, then the tracks

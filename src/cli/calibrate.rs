@@ -121,10 +121,12 @@ impl Args {
     }
 }
 
-/// `--rolling-shutter`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-enum RollingShutterMode {
-    /// Tried by the term selection, kept when significant.
+/// `--rolling-shutter` (of `calibrate` and of the main command).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum RollingShutterMode {
+    /// Calibration: tried by the term selection, kept when significant. Site: modelled when
+    /// the readout time is known (the profile's, or `--readout-time`).
+    #[default]
     Auto,
     /// Left out.
     Off,

@@ -16,6 +16,7 @@ use pipemeasure::io::ply::{PointCloud, stage_binary};
 use pipemeasure::measure::PipeMeasurement;
 use pipemeasure::measure::site::{ScaleTargetOut, SiteReport, SiteRequest, measure_site};
 
+use super::calibrate::RollingShutterMode;
 use super::fit_cylinder::{SearchArgs, read_points};
 use super::progress::bar;
 use super::{Globals, values};
@@ -61,6 +62,15 @@ pub struct Args {
     /// Smallest semi-minor axis of a target to use (px, at least 1).
     #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
+    /// The rolling shutter of video frames: `auto` models it when the readout time is known
+    /// (the profile's, from a calibration that kept it, or `--readout-time`): each frame's
+    /// motion is adjusted with its pose, and the targets and the cloud are triangulated with
+    /// each row's pose; `off` leaves it out (frames taken still).
+    #[arg(long, value_enum, default_value_t = RollingShutterMode::Auto)]
+    rolling_shutter: RollingShutterMode,
+    /// The device's readout time (ms), instead of the profile's.
+    #[arg(long, value_name = "MS", value_parser = values::readout_ms)]
+    readout_time: Option<f64>,
 }
 
 impl Args {
@@ -80,6 +90,11 @@ impl Args {
             ("--near", self.search.near.is_some()),
             ("--within", self.search.within.is_some()),
             ("--axis-hint", self.search.axis_hint.is_some()),
+            ("--readout-time", self.readout_time.is_some()),
+            (
+                "--rolling-shutter",
+                self.rolling_shutter != RollingShutterMode::Auto,
+            ),
         ]
         .into_iter()
         .filter_map(|(name, given)| given.then_some(name))
@@ -135,6 +150,8 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
         min_semi_minor_px: args.min_semi_minor,
         region: args.search.region()?,
         cylinder: args.search.config()?,
+        readout_time_s: args.readout_time.map(|ms| ms * 1e-3),
+        global_shutter: args.rolling_shutter == RollingShutterMode::Off,
     };
     let points = read_points(cloud)?;
     let scan = args.tls_scan.as_deref().map(read_points).transpose()?;

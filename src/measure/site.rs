@@ -23,10 +23,13 @@ use super::targets::match_site_targets;
 use crate::adjust::AdjustConfig;
 use crate::calibrate::matching::MatchConfig;
 use crate::calibrate::pipeline::CalibrateError;
-use crate::calibrate::poses::{ConsistentPoses, consistent_poses, pose_covariance};
+use crate::calibrate::poses::{
+    ConsistentPoses, RollingPoses, consistent_poses, consistent_poses_rolling, pose_covariance,
+};
 use crate::calibrate::refine::RefineConfig;
 use crate::calibrate::views::FrameCamera;
 use crate::camera::convert::{ColmapModel, brown_from_colmap};
+use crate::camera::rolling::RowTiming;
 use crate::camera::{BrownCamera, Intrinsics};
 use crate::detect::{DetectConfig, DetectFilesError, detect_frame_files};
 use crate::geometry::triangulation::{Observation, triangulate};
@@ -105,6 +108,10 @@ pub struct SiteRequest {
     pub region: Option<Region>,
     /// The cylinder search.
     pub cylinder: CylinderConfig,
+    /// The rolling shutter's readout time (s), when given: overrides the profile's.
+    pub readout_time_s: Option<f64>,
+    /// Leave the rolling shutter out even when the profile has a readout time.
+    pub global_shutter: bool,
 }
 
 /// The first existing `name` in the cloud's folder, its parent and grandparent.
@@ -240,9 +247,66 @@ pub struct SiteScale {
     pub intrinsics: Intrinsics,
     /// The poses re-adjusted to them.
     pub poses: ConsistentPoses,
-    /// Per reconstructed target (the estimate's indices), its views: frame index and the
-    /// Algorithm-3-corrected centre in undistorted pixels.
-    pub tracks: Vec<Vec<(usize, Vector2<f64>)>>,
+    /// Per reconstructed target (the estimate's indices), its views.
+    pub tracks: Vec<Vec<Ray>>,
+}
+
+/// One view of a point: the frame (index into the re-adjusted poses' frames), its ideal or
+/// undistorted image coordinates, and the row it was seen in (observed pixels; a rolling
+/// shutter's row time follows from it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    /// Frame index.
+    pub frame: usize,
+    /// Image coordinates (ideal for the cloud's rays, undistorted pixels for the targets').
+    pub xy: Vector2<f64>,
+    /// Row in the frame as recorded (px from the top).
+    pub row_px: f64,
+}
+
+/// The pose a ray was seen from: the frame's `pose`, moved to the ray's row time when the
+/// frames have rolling-shutter motions.
+fn ray_pose(
+    rolling: Option<&RollingPoses>,
+    ray: &Ray,
+    pose: &crate::geometry::Rigid3,
+) -> crate::geometry::Rigid3 {
+    rolling.map_or(*pose, |r| r.row_pose(ray.frame, pose, ray.row_px))
+}
+
+/// A target triangulated from its views' undistorted centres through `intrinsics` and the
+/// frames' `poses` (each view at its row's pose under a rolling shutter).
+fn triangulate_target(
+    views: &[Ray],
+    intrinsics: &Intrinsics,
+    poses: &dyn Fn(usize) -> crate::geometry::Rigid3,
+    rolling: Option<&RollingPoses>,
+) -> Option<Point3<f64>> {
+    let obs: Vec<Observation> = views
+        .iter()
+        .map(|ray| Observation {
+            p: FrameCamera {
+                intrinsics: *intrinsics,
+                cam_from_world: ray_pose(rolling, ray, &poses(ray.frame)),
+            }
+            .p(),
+            xy: ray.xy,
+        })
+        .collect();
+    triangulate(&obs)
+}
+
+/// The median angular speed (°/s) of the frames' motions.
+fn median_angular_speed_deg_s(motions: &[crate::camera::rolling::Motion]) -> f64 {
+    let mut speeds: Vec<f64> = motions
+        .iter()
+        .map(|m| m.angular.norm().to_degrees())
+        .collect();
+    if speeds.is_empty() {
+        return 0.0;
+    }
+    speeds.sort_by(f64::total_cmp);
+    speeds[speeds.len() / 2]
 }
 
 /// Scale from the targets: the profile's intrinsics, the model's poses re-adjusted to them, the
@@ -321,12 +385,30 @@ pub fn scale_from_targets(
     let (intrinsics, undistorted) =
         site_intrinsics(device, &profile_path, &profile.camera(), &model)?;
     let size = model_image_size(&model)?;
-    let poses = consistent_poses(
-        &model,
-        &intrinsics,
-        &RefineConfig::default(),
-        &AdjustConfig::default(),
-    )
+    let readout_s = match (request.global_shutter, request.readout_time_s) {
+        (true, _) => None,
+        (false, Some(r)) => Some(r),
+        (false, None) => profile.rolling_shutter.as_ref().map(|r| r.readout_s),
+    }
+    .filter(|&r| r > 0.0);
+    let poses = match readout_s {
+        Some(readout_s) => consistent_poses_rolling(
+            &model,
+            &intrinsics,
+            RowTiming {
+                readout_s,
+                height_px: f64::from(size.1),
+            },
+            &RefineConfig::default(),
+            &AdjustConfig::default(),
+        ),
+        None => consistent_poses(
+            &model,
+            &intrinsics,
+            &RefineConfig::default(),
+            &AdjustConfig::default(),
+        ),
+    }
     .map_err(|source| SiteError::Poses {
         path: sfm.clone(),
         source,
@@ -341,6 +423,25 @@ pub fn scale_from_targets(
         },
         poses.sigma_after_px
     ));
+    match &poses.rolling {
+        Some(r) => log(&format!(
+            "rolling shutter: readout {:.1} ms ({}); a motion per frame adjusted with the poses: reprojection σ {:.2} px without, {:.2} px with; median angular speed {:.1} °/s",
+            r.timing.readout_s * 1e3,
+            if request.readout_time_s.is_some() {
+                "given"
+            } else {
+                "the profile's"
+            },
+            r.sigma_global_px,
+            r.sigma_px,
+            median_angular_speed_deg_s(&r.motions)
+        )),
+        None => log(if request.global_shutter {
+            "rolling shutter: left out (--rolling-shutter off)"
+        } else {
+            "rolling shutter: not modelled (the profile has no readout time; give --readout-time MS for video frames)"
+        }),
+    }
     let names: Vec<String> = poses.a1.frames.iter().map(|f| f.name.clone()).collect();
     let config = DetectConfig {
         min_semi_minor_px: request.min_semi_minor_px,
@@ -358,7 +459,40 @@ pub fn scale_from_targets(
         poses.a1.reprojection_sigma,
         &MatchConfig::default(),
     );
-    let reconstructed = targets.reconstructed();
+    let tracks: Vec<Vec<Ray>> = targets
+        .matching
+        .tracks
+        .iter()
+        .map(|t| {
+            t.views
+                .iter()
+                .map(|v| Ray {
+                    frame: v.frame,
+                    xy: v.best_centre(),
+                    row_px: targets
+                        .observations
+                        .get(v.frame)
+                        .and_then(|o| o.get(v.obs))
+                        .map_or(f64::from(size.1) / 2.0, |o| o.detected.centre().y),
+                })
+                .collect()
+        })
+        .collect();
+    let mut reconstructed = targets.reconstructed();
+    if let Some(rolling) = &poses.rolling {
+        // Algorithm 2 matched and triangulated with the frame-time poses; the targets for the
+        // scale are triangulated again, each view at its row's pose.
+        for (target, views) in reconstructed.iter_mut().zip(&tracks) {
+            if let Some(p) = triangulate_target(
+                views,
+                &intrinsics,
+                &|f| cameras[f].cam_from_world,
+                Some(rolling),
+            ) {
+                target.point = p;
+            }
+        }
+    }
     log(&format!(
         "{} frames, {} targets matched (Algorithms 1–3) with {}",
         names.len(),
@@ -377,12 +511,6 @@ pub fn scale_from_targets(
                 source,
             }
         })?;
-    let tracks = targets
-        .matching
-        .tracks
-        .iter()
-        .map(|t| t.views.iter().map(|v| (v.frame, v.best_centre())).collect())
-        .collect();
     Ok(SiteScale {
         tracks,
         views: reconstructed.iter().map(|t| t.views).collect(),
@@ -405,7 +533,9 @@ pub fn scale_from_targets(
 /// `cameras` (the profile's intrinsics at the re-adjusted poses). The cloud COLMAP fused with
 /// its own camera carries that camera's errors; this is the same cloud as the profile sees it.
 /// Points with fewer than two usable views are dropped; returned with how many, and per kept
-/// point its views (index into `cameras`, ideal image coordinates under the new intrinsics).
+/// point its views (index into `cameras`, ideal image coordinates under the new intrinsics,
+/// the row). With `rolling`, each view is triangulated at its row's pose (the row where the
+/// model's camera sees the point).
 ///
 /// # Errors
 ///
@@ -416,6 +546,7 @@ pub fn retriangulate_cloud(
     model: &Reconstruction,
     image_order: &[ImageId],
     cameras: &[(ImageId, FrameCamera)],
+    rolling: Option<&RollingPoses>,
 ) -> Result<RetriangulatedCloud, SiteError> {
     // Per position in the images file: the model's camera and pose, and the new camera.
     let mut views = Vec::with_capacity(image_order.len());
@@ -447,22 +578,25 @@ pub fn retriangulate_cloud(
             "fused.ply.vis names image {bad} but the model has {n_views} images"
         )));
     }
-    type Views = Vec<(usize, Vector2<f64>)>;
-    let out: Vec<Option<(Vector3<f64>, Views)>> = points
+    let out: Vec<Option<(Vector3<f64>, Vec<Ray>)>> = points
         .par_iter()
         .zip(visibility)
         .map(|(x, vis)| {
-            let rays: Views = vis
+            let rays: Vec<Ray> = vis
                 .iter()
                 .filter_map(|&k| {
                     let (original, pose, new) = views.get(k as usize)?;
-                    let j = (*new)?;
+                    let frame = (*new)?;
                     let uv = original.project(&(pose * Point3::from(*x)).coords)?;
-                    let xy = cameras[j].1.intrinsics.ideal_from_pixel(&uv).ok()?;
-                    Some((j, xy))
+                    let xy = cameras[frame].1.intrinsics.ideal_from_pixel(&uv).ok()?;
+                    Some(Ray {
+                        frame,
+                        xy,
+                        row_px: uv.y,
+                    })
                 })
                 .collect();
-            let p = triangulate_rays(&rays, &|j| cameras[j].1.cam_from_world)?;
+            let p = triangulate_rays(&rays, &|j| cameras[j].1.cam_from_world, rolling)?;
             Some((p, rays))
         })
         .collect();
@@ -480,24 +614,26 @@ pub fn retriangulate_cloud(
 pub struct RetriangulatedCloud {
     /// The points.
     pub points: Vec<Vector3<f64>>,
-    /// Per point its views: camera index and ideal image coordinates.
-    pub rays: Vec<Vec<(usize, Vector2<f64>)>>,
+    /// Per point its views (ideal image coordinates).
+    pub rays: Vec<Vec<Ray>>,
     /// Points dropped for fewer than two usable views.
     pub dropped: usize,
 }
 
-/// A point triangulated from ideal image coordinates in the cameras `pose(j)`; `None` for
-/// fewer than two views or a degenerate configuration.
+/// A point triangulated from ideal image coordinates in the frames' cameras `pose(frame)`
+/// (each ray at its row's pose with `rolling`); `None` for fewer than two views or a
+/// degenerate configuration.
 fn triangulate_rays(
-    rays: &[(usize, Vector2<f64>)],
+    rays: &[Ray],
     pose: &dyn Fn(usize) -> crate::geometry::Rigid3,
+    rolling: Option<&RollingPoses>,
 ) -> Option<Vector3<f64>> {
     if rays.len() < 2 {
         return None;
     }
     let obs: Vec<Observation> = rays
         .iter()
-        .map(|&(j, xy)| Observation::normalized(&pose(j), xy))
+        .map(|ray| Observation::normalized(&ray_pose(rolling, ray, &pose(ray.frame)), ray.xy))
         .collect();
     triangulate(&obs).map(|p| p.coords)
 }
@@ -570,9 +706,16 @@ pub fn measure_site(
                 .iter()
                 .map(|f| (f.image_id, f.camera))
                 .collect();
-            let cloud = retriangulate_cloud(points, &visibility, &t.model, &order, &cameras)?;
+            let rolling = t.poses.rolling.as_ref();
+            let cloud =
+                retriangulate_cloud(points, &visibility, &t.model, &order, &cameras, rolling)?;
             log(&format!(
-                "cloud re-triangulated through the profile at the re-adjusted poses ({} points, {} without two usable views dropped; visibility from {})",
+                "cloud re-triangulated through the profile at the re-adjusted poses{} ({} points, {} without two usable views dropped; visibility from {})",
+                if rolling.is_some() {
+                    ", each view at its row's pose"
+                } else {
+                    ""
+                },
                 cloud.points.len(),
                 cloud.dropped,
                 vis_path.display()
@@ -848,6 +991,7 @@ fn pose_radius_std(
         return None;
     }
     let frames = &t.poses.a1.frames;
+    let rolling = t.poses.rolling.as_ref();
     let tls = &t.tls_points;
     let radii: Vec<f64> = (0..POSE_SAMPLES)
         .into_par_iter()
@@ -865,26 +1009,14 @@ fn pose_radius_std(
             let targets: Vec<Option<Point3<f64>>> = t
                 .tracks
                 .iter()
-                .map(|views| {
-                    let obs: Vec<Observation> = views
-                        .iter()
-                        .map(|&(f, uv)| Observation {
-                            p: FrameCamera {
-                                intrinsics: t.intrinsics,
-                                cam_from_world: poses[f],
-                            }
-                            .p(),
-                            xy: uv,
-                        })
-                        .collect();
-                    triangulate(&obs)
-                })
+                .map(|views| triangulate_target(views, &t.intrinsics, &|f| poses[f], rolling))
                 .collect();
             let transform = resampled_transform(&t.estimate, &targets, tls)?;
             let points: Vec<Vector3<f64>> = near
                 .iter()
                 .filter_map(|&k| {
-                    triangulate_rays(&cloud.rays[k], &|j| poses[j]).map(|p| transform.apply(&p))
+                    triangulate_rays(&cloud.rays[k], &|j| poses[j], rolling)
+                        .map(|p| transform.apply(&p))
                 })
                 .collect();
             super::pipe::fit_points(&points, &request.cylinder)

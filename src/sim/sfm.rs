@@ -8,7 +8,10 @@
 //! * one SIMPLE_RADIAL camera initialised from an EXIF-like focal guess (the true principal
 //!   distance off by up to ±3 %, principal point at the image centre, no distortion);
 //! * feature tracks of points on textured surfaces, observed through the true camera with
-//!   σ = 0.5 px noise, and 3 % of the observations replaced by gross mismatches (random pixels).
+//!   σ = 0.5 px noise, and 3 % of the observations replaced by gross mismatches (random pixels);
+//!   in a video ([`stand_in_observed`] with the video's observer) each feature is where the
+//!   moving rolling-shutter camera sees it, in its own row, as a feature detector finds it in
+//!   such a frame — the model's poses then absorb the rolling shutter as COLMAP's do.
 
 use nalgebra::{Point3, Translation3, UnitQuaternion, Vector2, Vector3};
 use rand::{Rng, SeedableRng};
@@ -123,7 +126,11 @@ pub(crate) fn observe(
     Some(uv)
 }
 
-/// Builds the stand-in sparse model for frames `names` at true poses `poses`.
+/// How frame `k` sees surface point `p` (normal `n`): its exact pixel, `None` when not seen.
+pub type Observer<'a> =
+    dyn Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + 'a;
+
+/// Builds the stand-in sparse model for still frames `names` at true poses `poses`.
 #[must_use]
 pub fn stand_in(
     scene: &Scene,
@@ -132,6 +139,24 @@ pub fn stand_in(
     names: &[String],
     config: &SfmConfig,
     seed: u64,
+) -> (Reconstruction, SfmTruth) {
+    let still =
+        |k: usize, p: &Point3<f64>, n: &Vector3<f64>| observe(scene, camera, &poses[k], p, n);
+    stand_in_observed(scene, camera, poses, names, config, seed, &still)
+}
+
+/// [`stand_in`] with the frames' features where `observer` sees them (a video's
+/// rolling-shutter pixels); `poses` are the frame-time poses (points are found by casting
+/// rays from them, and the perturbed model poses start from them).
+#[must_use]
+pub fn stand_in_observed(
+    scene: &Scene,
+    camera: &BrownCamera,
+    poses: &[Rigid3],
+    names: &[String],
+    config: &SfmConfig,
+    seed: u64,
+    observer: &Observer<'_>,
 ) -> (Reconstruction, SfmTruth) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5F3);
     let similarity = if config.random_similarity {
@@ -193,8 +218,8 @@ pub fn stand_in(
         let p = eye + dir * hit.t;
         let mut track = Vec::new();
         let mut observations = Vec::new();
-        for (k, pose) in poses.iter().enumerate() {
-            if let Some(uv) = observe(scene, camera, pose, &p, &hit.normal) {
+        for k in 0..poses.len() {
+            if let Some(uv) = observer(k, &p, &hit.normal) {
                 observations.push((k, uv));
             }
         }

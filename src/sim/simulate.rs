@@ -29,7 +29,7 @@ use super::devices::{PRESETS, preset};
 use super::lab::{LabConfig, LabConfigError, Station};
 use super::render::{RayGrid, RenderConfig, RenderConfigError, exposure_gain, render_frame};
 use super::scene::Scene;
-use super::sfm::{SfmConfig, stand_in};
+use super::sfm::{SfmConfig, stand_in, stand_in_observed};
 use super::truth::{TRUTH_SCHEMA, Truth, TruthCamera, frame_truth};
 use super::video::{Filming, VideoConfig};
 use crate::camera::BrownCamera;
@@ -364,7 +364,7 @@ fn film<'a>(
     super::video::clear_video_outputs(out)?;
     if options.video.is_none() {
         let frames = render_frames(scene, camera, &stations, gain, options, out, progress)?;
-        let sfm = write_sparse(scene, camera, &stations, options, out)?;
+        let sfm = write_sparse(scene, camera, &stations, None, options, out)?;
         return Ok(Filmed {
             frames,
             stations,
@@ -376,7 +376,14 @@ fn film<'a>(
     let filming = Filming::new(scene, camera, &stations, gain, options)?;
     let stations = filming.stations();
     let mut frames = filming.film_main(out, progress)?;
-    let sfm = write_sparse(scene, camera, &stations, options, out)?;
+    let sfm = write_sparse(
+        scene,
+        camera,
+        &stations,
+        Some(&filming.dense_observer()),
+        options,
+        out,
+    )?;
     let video = filming.film_rest(&mut frames, out, progress)?;
     Ok(Filmed {
         frames,
@@ -460,9 +467,12 @@ pub fn lab_geometry(
     let camera = options.camera()?;
     let scene = super::lab::build_scene(lab, texel_size(&camera), options.seed);
     let mut stations = super::lab::path(lab, options.seed);
-    let (frames, video) = if options.video.is_some() {
+    let filming = match options.video {
         // The gain does not enter the truth.
-        let filming = Filming::new(&scene, &camera, &stations, 1.0, options)?;
+        Some(_) => Some(Filming::new(&scene, &camera, &stations, 1.0, options)?),
+        None => None,
+    };
+    let (frames, video) = if let Some(filming) = &filming {
         stations = filming.stations();
         (filming.truth_frames(), Some(filming.truth(None)))
     } else {
@@ -485,7 +495,18 @@ pub fn lab_geometry(
     };
     let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
     let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
-    let (model, sfm) = stand_in(&scene, &camera, &poses, &names, &options.sfm, options.seed);
+    let (model, sfm) = match &filming {
+        Some(filming) => stand_in_observed(
+            &scene,
+            &camera,
+            &poses,
+            &names,
+            &options.sfm,
+            options.seed,
+            &filming.dense_observer(),
+        ),
+        None => stand_in(&scene, &camera, &poses, &names, &options.sfm, options.seed),
+    };
     Ok((
         truth_record("lab", options, &camera, &scene, frames, sfm, video),
         model,
@@ -639,11 +660,13 @@ fn sfm_camera(
     })
 }
 
-/// Writes `out/sparse` from the stand-in or from COLMAP.
+/// Writes `out/sparse` from the stand-in (its features where `observer` sees them, a video's
+/// rolling-shutter pixels; the still frames' when `None`) or from COLMAP.
 fn write_sparse(
     scene: &Scene,
     camera: &BrownCamera,
     stations: &[Station],
+    observer: Option<&super::sfm::Observer<'_>>,
     options: &SimulateOptions,
     out: &Path,
 ) -> Result<super::truth::SfmTruth, SimError> {
@@ -652,8 +675,18 @@ fn write_sparse(
         SfmSource::StandIn => {
             let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
             let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
-            let (model, truth) =
-                stand_in(scene, camera, &poses, &names, &options.sfm, options.seed);
+            let (model, truth) = match observer {
+                Some(observer) => stand_in_observed(
+                    scene,
+                    camera,
+                    &poses,
+                    &names,
+                    &options.sfm,
+                    options.seed,
+                    observer,
+                ),
+                None => stand_in(scene, camera, &poses, &names, &options.sfm, options.seed),
+            };
             model.write(&sparse, ModelFormat::Text)?;
             Ok(truth)
         }
