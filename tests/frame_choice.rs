@@ -90,7 +90,8 @@ fn the_chosen_frames_move_at_most_half_as_fast_as_plain_extraction() {
 
     // Written as calibrate --video writes them: the chosen frames, their neighbours, the sidecar.
     let out = dir.path().join("chosen");
-    let extraction = extract_frames(&video, &out, FrameChoice::PerSecond(1), &|_, _| {}).unwrap();
+    let extraction =
+        extract_frames(&video, &out, FrameChoice::PerSecond(1), true, &|_, _| {}).unwrap();
     assert_eq!(extraction.sidecar.frames.len(), 7);
     for entry in &extraction.sidecar.frames {
         for name in std::iter::once(&entry.name).chain(entry.neighbours.iter().map(|n| &n.name)) {
@@ -101,9 +102,43 @@ fn the_chosen_frames_move_at_most_half_as_fast_as_plain_extraction() {
     let read = pipemeasure::io::sidecar::FramesSidecar::read(&out.join("frames.json")).unwrap();
     assert_eq!(read, extraction.sidecar);
     // A second extraction into the same folder is refused, and the frames stay.
-    let again = extract_frames(&video, &out, FrameChoice::PerSecond(1), &|_, _| {});
+    let again = extract_frames(&video, &out, FrameChoice::PerSecond(1), true, &|_, _| {});
     assert!(again.unwrap_err().to_string().contains("already holds"));
     assert!(out.join("frame_0007.png").is_file());
+
+    // A site's video through `pipemeasure frames`: the same choice, no neighbours (COLMAP
+    // reads the folder as it is).
+    let site = dir.path().join("site_frames");
+    let (code, _, err) = pipemeasure(
+        dir.path(),
+        &[
+            "frames",
+            video.to_str().unwrap(),
+            "--out",
+            site.to_str().unwrap(),
+            "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{err}");
+    let sidecar = pipemeasure::io::sidecar::FramesSidecar::read(&site.join("frames.json")).unwrap();
+    let names: Vec<&String> = sidecar.frames.iter().map(|f| &f.name).collect();
+    let expected: Vec<&String> = extraction.sidecar.frames.iter().map(|f| &f.name).collect();
+    assert_eq!(names, expected);
+    assert!(sidecar.frames.iter().all(|f| f.neighbours.is_empty()));
+    assert!(!site.join("neighbours").exists());
+    for (a, b) in sidecar.frames.iter().zip(&extraction.sidecar.frames) {
+        assert_eq!(a.time_s, b.time_s);
+        let (x, y) = (
+            image::open(site.join(&a.name)).unwrap(),
+            image::open(out.join(&b.name)).unwrap(),
+        );
+        assert_eq!(x.as_bytes(), y.as_bytes(), "{}", a.name);
+    }
+    // A missing video: exit 1 naming it.
+    let (code, _, err) = pipemeasure(dir.path(), &["frames", "missing.mp4"], &[]);
+    assert_eq!(code, 1);
+    assert!(err.contains("missing.mp4"), "{err}");
 }
 
 #[test]

@@ -30,7 +30,6 @@ use pipemeasure::profile::{
     backup_path, validate_device_name,
 };
 use pipemeasure::report::plots;
-use pipemeasure::video::{FrameChoice, extract_frames};
 use serde::Serialize;
 
 use super::matching::detect_named_frames;
@@ -651,65 +650,16 @@ fn check_points_markdown(c: &CheckPointReport) -> String {
     md
 }
 
-/// `--video`: chooses and writes the frames, and returns the arguments with `--frames` set to
-/// their folder.
+/// `--video`: chooses and writes the frames with their neighbours, and returns the arguments
+/// with `--frames` set to their folder.
 fn frames_from_video(args: &Args, video: &Path, quiet: bool) -> Result<Args> {
-    let dir = args.frames.clone().unwrap_or_else(|| {
-        let stem = video
-            .file_stem()
-            .map_or_else(|| "video".into(), |s| s.to_string_lossy().into_owned());
-        video
-            .parent()
-            .unwrap_or(Path::new("."))
-            .join(format!("{stem}_frames"))
-    });
-    let rule = match args.every_frame_at {
-        Some(rate) => FrameChoice::EveryFrameAt(rate),
-        None => FrameChoice::PerSecond(args.per_second),
-    };
-    let bar = progress::bar(0, "decoding the video", quiet);
-    let extraction = extract_frames(video, &dir, rule, &|done, total| match total {
-        None => bar.set_position(done as u64),
-        Some(total) => {
-            bar.set_message("writing the chosen frames");
-            bar.set_length(total as u64);
-            bar.set_position(done as u64);
-        }
-    })
-    .with_context(|| format!("--video {}", video.display()))?;
-    bar.finish_and_clear();
-    let record = &extraction.record;
-    if !quiet {
-        let chosen: Vec<_> = record.frames.iter().filter(|f| f.chosen).collect();
-        let (chosen_motion, plain_motion) = record.mean_motion_px();
-        eprintln!(
-            "{}: {} video frames of {}x{} at {:.3} fps; {} chosen ({}) into {}: mean motion {:.2} px per video frame (plain 1 fps extraction: {:.2})",
-            video.display(),
-            record.frames.len(),
-            record.info.width,
-            record.info.height,
-            record.info.fps,
-            chosen.len(),
-            record.rule,
-            dir.display(),
-            chosen_motion,
-            plain_motion,
-        );
-        for (i, f) in chosen.iter().enumerate() {
-            eprintln!(
-                "  frame_{:04}.png: video frame {} at {:.3} s, motion {}, sharpness {:.1}",
-                i + 1,
-                f.index,
-                f.time_s,
-                f.motion_px
-                    .map_or_else(|| "not measured".into(), |m| format!("{m:.2} px/frame")),
-                f.sharpness
-            );
-        }
-    }
-    for w in &extraction.warnings {
-        eprintln!("warning: {w}");
-    }
+    let dir = args
+        .frames
+        .clone()
+        .unwrap_or_else(|| super::frames::default_dir(video));
+    let rule = super::frames::rule(args.per_second, args.every_frame_at);
+    super::frames::write_video_frames(video, &dir, rule, true, quiet)
+        .with_context(|| "--video".to_string())?;
     Ok(Args {
         frames: Some(dir),
         video: None,

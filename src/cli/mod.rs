@@ -22,6 +22,7 @@ mod demo;
 mod detect;
 mod experiments;
 mod fit_cylinder;
+mod frames;
 mod matching;
 mod measure;
 mod profile;
@@ -79,6 +80,9 @@ enum Command {
     Calibrate(calibrate::Args),
     /// Fit the best-supported cylinder (or every cylinder) of a point cloud.
     FitCylinder(fit_cylinder::Args),
+    /// Choose the frames of a video (per second the one that moves least and is sharpest) and
+    /// write them, e.g. a site's video before COLMAP.
+    Frames(frames::Args),
     /// Match circular targets across the frames of an SfM model (paper Algorithms 1–3).
     Match(matching::Args),
     /// Show, list or convert device profiles.
@@ -183,6 +187,7 @@ fn run(command: Command, globals: Globals) -> Result<()> {
         Command::Match(args) => matching::run(&args, globals),
         Command::Calibrate(args) => calibrate::run(&args, globals),
         Command::FitCylinder(args) => fit_cylinder::run(&args, globals),
+        Command::Frames(args) => frames::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
     }

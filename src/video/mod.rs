@@ -502,7 +502,7 @@ fn best_in(window: &[FrameMeasure]) -> Option<usize> {
 /// The sidecar of the chosen frames: names `frame_0001.png` …, neighbours
 /// `neighbours/frame_0001-1.png` and `+1` at `∓1/fps`.
 #[must_use]
-pub fn sidecar_for(chosen: &[usize], fps: f64) -> FramesSidecar {
+pub fn sidecar_for(chosen: &[usize], fps: f64, neighbours: bool) -> FramesSidecar {
     FramesSidecar {
         schema: FRAMES_SCHEMA.into(),
         frames: chosen
@@ -513,23 +513,28 @@ pub fn sidecar_for(chosen: &[usize], fps: f64) -> FramesSidecar {
                 FramesEntry {
                     name: format!("{stem}.png"),
                     time_s: k as f64 / fps,
-                    neighbours: vec![
-                        NeighbourEntry {
-                            name: format!("neighbours/{stem}-1.png"),
-                            dt_s: -1.0 / fps,
-                        },
-                        NeighbourEntry {
-                            name: format!("neighbours/{stem}+1.png"),
-                            dt_s: 1.0 / fps,
-                        },
-                    ],
+                    neighbours: if neighbours {
+                        vec![
+                            NeighbourEntry {
+                                name: format!("neighbours/{stem}-1.png"),
+                                dt_s: -1.0 / fps,
+                            },
+                            NeighbourEntry {
+                                name: format!("neighbours/{stem}+1.png"),
+                                dt_s: 1.0 / fps,
+                            },
+                        ]
+                    } else {
+                        Vec::new()
+                    },
                 }
             })
             .collect(),
     }
 }
 
-/// Chooses frames from `video` and writes them, their neighbours, `frames.json` and
+/// Chooses frames from `video` and writes them, with `neighbours` their two neighbours in the
+/// video (which the calibration's readout estimate uses; a site needs none), `frames.json` and
 /// `choice.json` into `dir` (created; it must not hold frames already). Everything is written
 /// into a staging folder beside `dir` first and moved into place at the end.
 ///
@@ -540,6 +545,7 @@ pub fn extract_frames(
     video: &Path,
     dir: &Path,
     rule: FrameChoice,
+    neighbours: bool,
     progress: &dyn Fn(usize, Option<usize>),
 ) -> Result<Extraction, VideoError> {
     let info = probe(video)?;
@@ -556,7 +562,7 @@ pub fn extract_frames(
         measures[k].chosen = true;
     }
     let warnings = motion_warnings(&measures, &chosen, &info);
-    let sidecar = sidecar_for(&chosen, info.fps);
+    let sidecar = sidecar_for(&chosen, info.fps, neighbours);
     let record = ChoiceRecord {
         schema: CHOICE_SCHEMA.into(),
         video: video.display().to_string(),
@@ -567,8 +573,9 @@ pub fn extract_frames(
         },
         frames: measures,
     };
+    let files = chosen.len() * if neighbours { 3 } else { 1 };
     write_frames(video, &info, dir, &chosen, &sidecar, &record, &|k| {
-        progress(k, Some(3 * chosen.len()));
+        progress(k, Some(files));
     })?;
     Ok(Extraction {
         record,
@@ -624,24 +631,23 @@ fn write_frames(
     if dir.join("frames.json").exists() || dir.join("frame_0001.png").exists() {
         return Err(VideoError::Unusable {
             path: dir.into(),
-            reason: "already holds extracted frames: remove it or choose another --frames folder"
-                .into(),
+            reason: "already holds extracted frames: remove it or choose another folder".into(),
         });
     }
     let staged = StagedDir::new(dir)?;
     let staging = staged.path();
-    std::fs::create_dir_all(staging.join("neighbours"))
-        .map_err(|e| write_err(&staging.join("neighbours"), e))?;
+    if sidecar.frames.iter().any(|f| !f.neighbours.is_empty()) {
+        std::fs::create_dir_all(staging.join("neighbours"))
+            .map_err(|e| write_err(&staging.join("neighbours"), e))?;
+    }
     // Each wanted video frame and the files it becomes (a frame may be one chosen frame's
     // neighbour and another's main frame).
     let mut wanted: std::collections::BTreeMap<usize, Vec<PathBuf>> = Default::default();
     for (entry, &k) in sidecar.frames.iter().zip(chosen) {
-        for (src, name) in [
-            (k, &entry.name),
-            (k - 1, &entry.neighbours[0].name),
-            (k + 1, &entry.neighbours[1].name),
-        ] {
-            wanted.entry(src).or_default().push(staging.join(name));
+        wanted.entry(k).or_default().push(staging.join(&entry.name));
+        for n in &entry.neighbours {
+            let src = (k as f64 + n.dt_s * info.fps).round().max(0.0) as usize;
+            wanted.entry(src).or_default().push(staging.join(&n.name));
         }
     }
     let total = wanted.len();
