@@ -125,6 +125,11 @@ fn a_video_site_is_measured_with_each_rows_pose() {
         rmse(&rolling),
         rmse(&still)
     );
-    // Without a readout time nothing changes: the global-shutter run has no motions.
+    // Without a readout time nothing changes: the global-shutter run has no motions. The
+    // report says what was modelled.
     assert!(global.targets.as_ref().unwrap().poses.rolling.is_none());
+    assert_eq!(global.report.readout_time_s, None);
+    assert_eq!(rolling.report.readout_time_s, Some(readout));
+    let sigma = rolling.report.reprojection_sigma_rolling_px.unwrap();
+    assert!(sigma < rolling.report.reprojection_sigma_after_px.unwrap());
 }

@@ -827,6 +827,12 @@ pub struct SiteReport {
     pub reprojection_sigma_before_px: Option<f64>,
     /// The same after the poses were re-adjusted to the profile (px).
     pub reprojection_sigma_after_px: Option<f64>,
+    /// The rolling shutter's readout time (s) the poses were adjusted with, when modelled.
+    pub readout_time_s: Option<f64>,
+    /// The re-adjustment's reprojection σ with a motion per frame (px), when modelled.
+    pub reprojection_sigma_rolling_px: Option<f64>,
+    /// The frames' median angular speed during the readout (°/s), when modelled.
+    pub median_angular_speed_deg_s: Option<f64>,
     /// Radius (m).
     pub radius_m: f64,
     /// Combined σ: the fit's, the scale's and the poses' (when the cloud was re-triangulated).
@@ -886,6 +892,7 @@ fn report(
 ) -> SiteReport {
     let c = &m.fit.cylinder;
     let est = targets.map(|t| &t.estimate);
+    let rolling = targets.and_then(|t| t.poses.rolling.as_ref());
     let scale_targets = targets
         .map(|t| {
             t.estimate
@@ -914,6 +921,9 @@ fn report(
         frames_undistorted: targets.map(|t| t.undistorted_frames),
         reprojection_sigma_before_px: targets.map(|t| t.poses.sigma_before_px),
         reprojection_sigma_after_px: targets.map(|t| t.poses.sigma_after_px),
+        readout_time_s: rolling.map(|r| r.timing.readout_s),
+        reprojection_sigma_rolling_px: rolling.map(|r| r.sigma_px),
+        median_angular_speed_deg_s: rolling.map(|r| median_angular_speed_deg_s(&r.motions)),
         radius_m: c.radius,
         radius_std_m: m.radius_std,
         pose_radius_std_m: None,
