@@ -417,6 +417,7 @@ impl Profile {
                 format!("has {} rows for {n} names", self.correlation.matrix.len()),
             ));
         }
+        // Every row's length before any value: the symmetry check reads the later rows.
         for (i, row) in self.correlation.matrix.iter().enumerate() {
             if row.len() != n {
                 return Err(invalid(
@@ -424,6 +425,8 @@ impl Profile {
                     format!("has {} entries, expected {n}", row.len()),
                 ));
             }
+        }
+        for (i, row) in self.correlation.matrix.iter().enumerate() {
             for (j, &v) in row.iter().enumerate() {
                 let sym = self.correlation.matrix[j][i];
                 let ok = v.is_finite()
@@ -746,6 +749,13 @@ mod tests {
         assert!(e.contains("correlation.matrix[0][1]"), "{e}");
         let e = error_for(|v| v["std_dev"]["k1"] = (-1.0).into());
         assert!(e.contains("std_dev.k1"), "{e}");
+        // A later row shorter than the names (found by the fuzz target `profile`: the
+        // symmetry check read past its end).
+        let e = error_for(|v| v["correlation"]["matrix"][1] = serde_json::json!([]));
+        assert!(
+            e.contains("correlation.matrix[1]") && e.contains("0 entries"),
+            "{e}"
+        );
         let e = Profile::from_json("{\"schema\": ", Path::new("p.json"))
             .unwrap_err()
             .to_string();
