@@ -5,11 +5,13 @@
 //! experiments).
 //!
 //! ```text
-//! cargo run --release --example pipe_table [-- --width 1920 --frames 60 --seed 1 --device p30 --out DIR]
+//! cargo run --release --example pipe_table [-- --width 1920 --frames 60 --seed 1 --device p30 --out DIR --video]
 //! ```
 //!
 //! Each site is simulated into `DIR/site_<device>` (default: a temporary folder), then measured
-//! twice. Prints the Markdown table and writes `DIR/table3.json` when `--out` is given.
+//! twice (three times with `--video`: the sites filmed as hand-held video, the rows' poses as
+//! the third method). Prints the Markdown table and writes `DIR/table3.json` when `--out` is
+//! given.
 
 use std::path::PathBuf;
 
@@ -35,6 +37,7 @@ fn main() -> Result<(), String> {
         width: parsed("--width", defaults.width)?,
         frames: parsed("--frames", defaults.frames)?,
         seed: parsed("--seed", defaults.seed)?,
+        video: std::env::args().any(|a| a == "--video"),
     };
     let tmp = tempfile::tempdir().map_err(|e| format!("temporary folder: {e}"))?;
     let out: PathBuf = arg("--out").map_or_else(|| tmp.path().to_path_buf(), PathBuf::from);

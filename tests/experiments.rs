@@ -1,6 +1,6 @@
-//! `pipemeasure experiments --quick`: the paper's four experiments end to end on simulated
-//! data, each output file present and each result checked against what the simulator's exact
-//! geometry implies.
+//! `pipemeasure experiments --quick`: the paper's four experiments (and the video variant of
+//! Table III) end to end on simulated data, each output file present and each result checked
+//! against what the simulator's exact geometry implies.
 #![allow(clippy::unwrap_used)]
 
 mod common;
@@ -99,4 +99,49 @@ fn an_unknown_experiment_is_a_usage_error_naming_it() {
         "{stderr}"
     );
     assert!(!tmp.path().join("ex").exists());
+}
+
+/// `experiments --quick --only video` (issue 19): the three presets' sites filmed as hand-held
+/// video; Table III's acceptance for video: every pre-calibration row (with and without the
+/// rows' poses) within 0.2 mm of the simulator's radius. The default run leaves it out.
+#[test]
+fn the_video_table_iii_measures_every_preset_within_its_goal() {
+    let tmp = tempfile::tempdir().unwrap();
+    let calibrations = concat!(env!("CARGO_MANIFEST_DIR"), "/calibrations");
+    let (code, stdout, stderr) = pipemeasure(
+        tmp.path(),
+        &[
+            "experiments",
+            "--quick",
+            "--only",
+            "video",
+            "--out",
+            "ex",
+            "--quiet",
+        ],
+        &[("PIPEMEASURE_CALIBRATIONS", calibrations)],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    assert!(stdout.contains("Table III, video"), "{stdout}");
+    let dir = tmp.path().join("ex");
+    assert!(!dir.join("table3.json").exists());
+    let sites: Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("video.json")).unwrap()).unwrap();
+    let sites = sites.as_array().unwrap();
+    assert_eq!(sites.len(), 3);
+    for site in sites {
+        let truth = site["truth_radius_m"].as_f64().unwrap();
+        let rows = site["rows"].as_array().unwrap();
+        let methods: Vec<&str> = rows.iter().map(|r| r["method"].as_str().unwrap()).collect();
+        assert_eq!(
+            methods,
+            ["PreCalibration", "PreCalibrationRowPoses", "InSitu"],
+            "{}",
+            site["device"]
+        );
+        for row in &rows[..2] {
+            let r = row["radius_m"].as_f64().unwrap();
+            assert!((r - truth).abs() < 0.2e-3, "{}: {row}", site["device"]);
+        }
+    }
 }

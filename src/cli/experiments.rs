@@ -17,7 +17,7 @@ use pipemeasure::report::plots::line_chart;
 use super::Globals;
 
 /// The experiments by name.
-const ALL: [&str; 3] = ["fig7-8", "table2", "table3"];
+const ALL: [&str; 4] = ["fig7-8", "table2", "table3", "video"];
 
 /// Arguments of `experiments`.
 #[derive(Debug, clap::Args)]
@@ -31,7 +31,8 @@ pub struct Args {
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Run only these, comma-separated: fig7-8, table2, table3.
+    /// Run only these, comma-separated: fig7-8, table2, table3, video (Table III with the
+    /// sites filmed as hand-held video; run only when named).
     #[arg(long, value_delimiter = ',', value_parser = clap::builder::PossibleValuesParser::new(ALL))]
     only: Vec<String>,
 }
@@ -73,7 +74,9 @@ fn json(value: &impl serde::Serialize) -> Result<String> {
 
 /// Runs the experiments.
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
-    let wanted = |name: &str| args.only.is_empty() || args.only.iter().any(|o| o == name);
+    let wanted = |name: &str| {
+        (args.only.is_empty() && name != "video") || args.only.iter().any(|o| o == name)
+    };
     let out = &args.out;
     std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
     let command = format!(
@@ -141,6 +144,33 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             &format!("{section}\nProduced by `{command}`.\n"),
         )?;
         write(out, "table3.json", &json(&results)?)?;
+        outln!("{section}");
+        index.push_str(&section);
+    }
+    if wanted("video") {
+        log("== Table III, video: the sites filmed as hand-held video");
+        let t3v = Table3Options {
+            video: true,
+            ..t3.clone()
+        };
+        let sites = out.join("video-sites");
+        let results = table3(&t3v, &sites, &command, &|m| log(&format!("  {m}")))
+            .map_err(anyhow::Error::msg)?;
+        let mut section = format!(
+            "\n## Table III, video — the sites filmed as hand-held video\n\n{} sites ({} frames of {}x{}, seed {}; rolling shutter at the preset's readout time, 8 ms exposure, 3–9 °/s and 0.05–0.15 m/s at the frames), simulated into `video-sites/`. The rows' poses use the preset's readout time, as a profile calibrated from the lab video holds it.\n\n",
+            t3v.devices.join(", "),
+            t3v.frames,
+            t3v.width,
+            t3v.width * 9 / 16,
+            t3v.seed
+        );
+        section.push_str(&table3_markdown(&results));
+        write(
+            out,
+            "video.md",
+            &format!("{section}\nProduced by `{command}`.\n"),
+        )?;
+        write(out, "video.json", &json(&results)?)?;
         outln!("{section}");
         index.push_str(&section);
     }

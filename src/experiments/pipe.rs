@@ -16,6 +16,12 @@
 //! The site is what `pipemeasure simulate site` writes (rendered frames, the SfM stand-in's
 //! sparse model, dense observations, TLS scan and target list), read back from its folder as a
 //! user's data would be.
+//!
+//! The video variant (issue 19, `experiments --only video`) films each site as a hand-held
+//! video (rolling shutter at the preset's readout time, motion blur) and adds a third row:
+//! pre-calibration with each row's pose (a motion per frame adjusted with the poses, the
+//! readout time given, the targets and the cloud triangulated at their rows' poses, as the main
+//! command does with `--readout-time`).
 
 use std::path::Path;
 
@@ -25,19 +31,21 @@ use serde::Serialize;
 use crate::adjust::{AdjustConfig, Similarity};
 use crate::calibrate::matching::MatchConfig;
 use crate::calibrate::pipeline::{adjust_feature_tracks, refresh_pairs};
-use crate::calibrate::poses::consistent_poses;
+use crate::calibrate::poses::{consistent_poses, consistent_poses_rolling};
 use crate::calibrate::refine::{RefineConfig, algorithm1};
 use crate::calibrate::views::FrameCamera;
+use crate::camera::rolling::RowTiming;
 use crate::camera::{BrownCamera, Intrinsics, Term};
 use crate::detect::{DetectConfig, detect_frame_files};
 use crate::geometry::conic::Ellipse;
 use crate::io::colmap::Reconstruction;
 use crate::io::observations::DenseObservations;
+use crate::measure::site::row_targets;
 use crate::measure::{
     CylinderConfig, Region, ScaleConfig, Scaling, estimate_scale, fit_points, match_site_targets,
     measure_pipe, transformed_points,
 };
-use crate::sim::dense::fuse;
+use crate::sim::dense::fuse_with;
 use crate::sim::truth::Truth;
 
 /// How the site's camera was obtained.
@@ -45,6 +53,8 @@ use crate::sim::truth::Truth;
 pub enum Method {
     /// Intrinsics fixed to the device profile.
     PreCalibration,
+    /// The same with a rolling-shutter motion per frame and each row's pose.
+    PreCalibrationRowPoses,
     /// c, k1, k2 self-calibrated on the site.
     InSitu,
 }
@@ -55,6 +65,7 @@ impl Method {
     pub fn name(self) -> &'static str {
         match self {
             Method::PreCalibration => "pre-calibration",
+            Method::PreCalibrationRowPoses => "pre-calibration, rows' poses",
             Method::InSitu => "in situ (radial)",
         }
     }
@@ -189,29 +200,55 @@ pub fn run_site(
             .map_err(|e| e.to_string())?;
 
     let profile = profile.scaled(size.0, size.1);
+    // A video's readout time, as the device's profile or data sheet gives it.
+    let timing = truth.video.as_ref().map(|v| RowTiming {
+        readout_s: v.readout_s,
+        height_px: f64::from(size.1),
+    });
+    let methods: &[Method] = if timing.is_some() {
+        &[
+            Method::PreCalibration,
+            Method::PreCalibrationRowPoses,
+            Method::InSitu,
+        ]
+    } else {
+        &[Method::PreCalibration, Method::InSitu]
+    };
     let mut rows = Vec::new();
-    for method in [Method::PreCalibration, Method::InSitu] {
+    for &method in methods {
         let (initial, free): (Option<&Intrinsics>, &[Term]) = match method {
-            Method::PreCalibration => (Some(&profile.intrinsics), &[]),
+            Method::PreCalibration | Method::PreCalibrationRowPoses => {
+                (Some(&profile.intrinsics), &[])
+            }
             Method::InSitu => (None, &[Term::C, Term::K1, Term::K2]),
         };
+        let row_timing = timing.filter(|_| method == Method::PreCalibrationRowPoses);
         // Pre-calibration as the main command does it: the poses re-adjusted to the profile
         // (two rounds with re-triangulation); in situ: COLMAP's radial self-calibration.
-        let (a1, summary, intrinsics, poses) = match initial {
+        let (a1, summary, intrinsics, poses, rolling) = match initial {
             Some(i) => {
-                let p = consistent_poses(
-                    &model,
-                    i,
-                    &RefineConfig::default(),
-                    &AdjustConfig::default(),
-                )
+                let p = match row_timing {
+                    Some(t) => consistent_poses_rolling(
+                        &model,
+                        i,
+                        t,
+                        &RefineConfig::default(),
+                        &AdjustConfig::default(),
+                    ),
+                    None => consistent_poses(
+                        &model,
+                        i,
+                        &RefineConfig::default(),
+                        &AdjustConfig::default(),
+                    ),
+                }
                 .map_err(|e| format!("{}: {e}", method.name()))?;
                 let poses: Vec<_> =
                     p.a1.frames
                         .iter()
                         .map(|f| f.camera.cam_from_world)
                         .collect();
-                (p.a1, p.summary, *i, poses)
+                (p.a1, p.summary, *i, poses, p.rolling)
             }
             None => {
                 let a1 = algorithm1(&model, None, &RefineConfig::default())
@@ -220,7 +257,7 @@ pub fn run_site(
                 let (summary, intrinsics, poses) =
                     adjust_feature_tracks(&model, &a1, &cameras, free, &AdjustConfig::default())
                         .map_err(|e| format!("{}: {e}", method.name()))?;
-                (a1, summary, intrinsics, poses)
+                (a1, summary, intrinsics, poses, None)
             }
         };
         let cameras: Vec<FrameCamera> = poses
@@ -240,25 +277,28 @@ pub fn run_site(
             a1.reprojection_sigma,
             &MatchConfig::default(),
         );
-        let reconstructed = targets.reconstructed();
+        let (reconstructed, _) =
+            row_targets(&targets, &cameras, &intrinsics, rolling.as_ref(), size.1);
         let estimate = estimate_scale(&reconstructed, &tls_points, &ScaleConfig::default())
             .map_err(|e| format!("{}: {e}", method.name()))?;
-        // The dense cloud through this camera at these poses (frames by name).
-        let frame_poses: Vec<Option<_>> = dense
+        // The dense cloud through this camera at these poses (frames by name; each
+        // observation at its row's pose with a rolling shutter).
+        let frame_index: Vec<Option<usize>> = dense
             .frames
             .iter()
-            .map(|name| {
-                a1.frames
-                    .iter()
-                    .position(|f| &f.name == name)
-                    .map(|k| poses[k])
-            })
+            .map(|name| a1.frames.iter().position(|f| &f.name == name))
             .collect();
         let camera = BrownCamera {
             intrinsics,
             ..profile
         };
-        let (cloud, _) = fuse(&dense, &camera, &frame_poses);
+        let (cloud, _) = fuse_with(&dense, &camera, &|frame, uv| {
+            let k = (*frame_index.get(frame as usize)?)?;
+            Some(match &rolling {
+                Some(r) => r.row_pose(k, &poses[k], uv.y),
+                None => poses[k],
+            })
+        });
         let points: Vec<Vector3<f64>> = cloud.points.iter().map(|p| p.coords).collect();
         let associated = estimate.associated.len();
         let scaling = Scaling::Targets(estimate);
@@ -318,6 +358,8 @@ pub struct Table3Options {
     pub frames: usize,
     /// Seed.
     pub seed: u64,
+    /// Film each site as a hand-held video (rolling shutter, motion blur): the video variant.
+    pub video: bool,
 }
 
 impl Default for Table3Options {
@@ -330,6 +372,7 @@ impl Default for Table3Options {
             width: 1920,
             frames: 60,
             seed: 1,
+            video: false,
         }
     }
 }
@@ -358,6 +401,7 @@ pub fn table3(
             height: options.width * 9 / 16,
             seed: options.seed,
             command: command.to_string(),
+            video: options.video.then(crate::sim::video::VideoConfig::default),
             ..SimulateOptions::default()
         };
         let mut site = SiteOptions::default();

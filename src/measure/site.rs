@@ -18,8 +18,9 @@ use serde::Serialize;
 
 use super::cylinder::{CylinderConfig, CylinderError};
 use super::pipe::{PipeMeasurement, Reference, Region, Scaling, measure_pipe, reference_fit};
+use super::scale::ReconstructedTarget;
 use super::scale::{ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};
-use super::targets::match_site_targets;
+use super::targets::{SiteTargets, match_site_targets};
 use crate::adjust::AdjustConfig;
 use crate::calibrate::matching::MatchConfig;
 use crate::calibrate::pipeline::CalibrateError;
@@ -296,6 +297,53 @@ fn triangulate_target(
     triangulate(&obs)
 }
 
+/// The matched targets with their views as rays (row: where the detection's centre was
+/// observed; the middle row when unknown), triangulated again with each view's row pose when
+/// the frames have rolling-shutter motions (Algorithm 2 matched and triangulated them with
+/// the frame-time poses); otherwise Algorithm 2's points.
+#[must_use]
+pub fn row_targets(
+    targets: &SiteTargets,
+    cameras: &[FrameCamera],
+    intrinsics: &Intrinsics,
+    rolling: Option<&RollingPoses>,
+    height_px: u32,
+) -> (Vec<ReconstructedTarget>, Vec<Vec<Ray>>) {
+    let tracks: Vec<Vec<Ray>> = targets
+        .matching
+        .tracks
+        .iter()
+        .map(|t| {
+            t.views
+                .iter()
+                .map(|v| Ray {
+                    frame: v.frame,
+                    xy: v.best_centre(),
+                    row_px: targets
+                        .observations
+                        .get(v.frame)
+                        .and_then(|o| o.get(v.obs))
+                        .map_or(f64::from(height_px) / 2.0, |o| o.detected.centre().y),
+                })
+                .collect()
+        })
+        .collect();
+    let mut reconstructed = targets.reconstructed();
+    if let Some(rolling) = rolling {
+        for (target, views) in reconstructed.iter_mut().zip(&tracks) {
+            if let Some(p) = triangulate_target(
+                views,
+                intrinsics,
+                &|f| cameras[f].cam_from_world,
+                Some(rolling),
+            ) {
+                target.point = p;
+            }
+        }
+    }
+    (reconstructed, tracks)
+}
+
 /// The median angular speed (°/s) of the frames' motions.
 fn median_angular_speed_deg_s(motions: &[crate::camera::rolling::Motion]) -> f64 {
     let mut speeds: Vec<f64> = motions
@@ -459,40 +507,13 @@ pub fn scale_from_targets(
         poses.a1.reprojection_sigma,
         &MatchConfig::default(),
     );
-    let tracks: Vec<Vec<Ray>> = targets
-        .matching
-        .tracks
-        .iter()
-        .map(|t| {
-            t.views
-                .iter()
-                .map(|v| Ray {
-                    frame: v.frame,
-                    xy: v.best_centre(),
-                    row_px: targets
-                        .observations
-                        .get(v.frame)
-                        .and_then(|o| o.get(v.obs))
-                        .map_or(f64::from(size.1) / 2.0, |o| o.detected.centre().y),
-                })
-                .collect()
-        })
-        .collect();
-    let mut reconstructed = targets.reconstructed();
-    if let Some(rolling) = &poses.rolling {
-        // Algorithm 2 matched and triangulated with the frame-time poses; the targets for the
-        // scale are triangulated again, each view at its row's pose.
-        for (target, views) in reconstructed.iter_mut().zip(&tracks) {
-            if let Some(p) = triangulate_target(
-                views,
-                &intrinsics,
-                &|f| cameras[f].cam_from_world,
-                Some(rolling),
-            ) {
-                target.point = p;
-            }
-        }
-    }
+    let (reconstructed, tracks) = row_targets(
+        &targets,
+        &cameras,
+        &intrinsics,
+        poses.rolling.as_ref(),
+        size.1,
+    );
     log(&format!(
         "{} frames, {} targets matched (Algorithms 1–3) with {}",
         names.len(),

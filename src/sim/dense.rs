@@ -232,6 +232,19 @@ pub fn fuse(
     camera: &BrownCamera,
     poses: &[Option<Rigid3>],
 ) -> (PointCloud, Vec<Vec<u32>>) {
+    fuse_with(observations, camera, &|frame, _| {
+        poses.get(frame as usize).copied().flatten()
+    })
+}
+
+/// [`fuse`] with each observation's camera pose given by `pose(frame, pixel)` (e.g. the pose
+/// of the row the pixel lies in, for a rolling-shutter frame); `None` skips the observation.
+#[must_use]
+pub fn fuse_with(
+    observations: &DenseObservations,
+    camera: &BrownCamera,
+    pose: &(dyn Fn(u32, &Vector2<f64>) -> Option<Rigid3> + Sync),
+) -> (PointCloud, Vec<Vec<u32>>) {
     let fused: Vec<(Point3<f64>, u8, Vec<u32>)> = observations
         .points
         .par_iter()
@@ -241,10 +254,7 @@ pub fn fuse(
                 .iter()
                 .filter_map(|o| {
                     let xy = camera.intrinsics.ideal_from_pixel(&o.uv).ok()?;
-                    Some((
-                        Observation::normalized(poses.get(o.frame as usize)?.as_ref()?, xy),
-                        o.frame,
-                    ))
+                    Some((Observation::normalized(&pose(o.frame, &o.uv)?, xy), o.frame))
                 })
                 .unzip();
             if obs.len() < 2 {
