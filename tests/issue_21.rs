@@ -151,7 +151,7 @@ fn issue_21_fit_cylinder_on_coordinates_near_1e308_exits_1() {
 fn issue_21_invalid_option_values_exit_2() {
     let dir = tempfile::tempdir().unwrap();
     write(dir.path(), "c.ply", &ply(&[[0.0, 0.0, 0.0]; 20]));
-    let cases: [(&[&str], &str); 11] = [
+    let cases: [(&[&str], &str); 16] = [
         (
             &[
                 "fit-cylinder",
@@ -212,6 +212,21 @@ fn issue_21_invalid_option_values_exit_2() {
                 "--readout-time",
                 "nan",
             ],
+            "--readout-time",
+        ),
+        (&["--readout-time=-5", "c.ply"], "--readout-time"),
+        (
+            &["--rolling-shutter", "maybe", "c.ply"],
+            "--rolling-shutter",
+        ),
+        (&["frames", "v.mp4", "--per-second", "0"], "--per-second"),
+        (
+            &["frames", "v.mp4", "--every-frame-at", "60fps"],
+            "--every-frame-at",
+        ),
+        // A main-command option with a subcommand.
+        (
+            &["frames", "v.mp4", "--readout-time", "20"],
             "--readout-time",
         ),
     ];
