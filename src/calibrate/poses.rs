@@ -21,7 +21,9 @@
 use super::pipeline::{CalibrateError, adjust_feature_tracks, feature_problem, refresh_pairs};
 use super::refine::{Algorithm1, RefineConfig, algorithm1, retriangulate};
 use super::views::FrameCamera;
-use crate::adjust::{AdjustConfig, AdjustSummary, BrownModel, Loss, free_network_datum};
+use crate::adjust::{
+    AdjustConfig, AdjustSummary, BrownModel, CameraModel as _, Loss, free_network_datum,
+};
 use crate::camera::Intrinsics;
 use crate::camera::rolling::{Motion, RowTiming, exp_so3};
 use crate::geometry::Rigid3;
@@ -201,10 +203,12 @@ fn round(
 }
 
 /// Covariance (σ0²·Q, minimum trace over the poses) of the frames' pose steps `(δω, δt)`
-/// ([`crate::geometry::pose::retract`]) at the re-adjusted cameras, all frames jointly (6 rows
-/// per frame, image-id order): the inlier tracks' problem with every intrinsic fixed, its
-/// reduced covariance without the (pinned) intrinsics' rows. `None` when the network's
-/// precision cannot be computed.
+/// ([`crate::geometry::pose::retract`]) at the re-adjusted cameras, all frames jointly (image-id
+/// order): the inlier tracks' problem with every intrinsic fixed, its reduced covariance
+/// without the (pinned) intrinsics' rows. 6 rows per frame; 12 when the poses were adjusted
+/// with rolling-shutter motions (the pose step, then the motion's `(δω, δν)`), so that what is
+/// sampled from it moves the rows' poses as the adjustment knows them. `None` when the
+/// network's precision cannot be computed.
 #[must_use]
 pub fn pose_covariance(
     model: &Reconstruction,
@@ -213,6 +217,14 @@ pub fn pose_covariance(
     let a1 = &poses.a1;
     let cameras = poses.cameras();
     let mut problem = feature_problem(model, a1, &cameras).ok()?;
+    if let Some(r) = &poses.rolling {
+        problem = problem.with_rolling_shutter(r.timing.height_px, r.timing.readout_s);
+        problem.local = r
+            .motions
+            .iter()
+            .flat_map(|m| m.angular.iter().chain(m.linear.iter()).copied())
+            .collect();
+    }
     problem.fixed.global = (0..problem.global.len()).collect();
     let precision = crate::adjust::precision(
         &problem,
@@ -225,5 +237,6 @@ pub fn pose_covariance(
     let reduced = precision.reduced_covariance?;
     let dg = problem.global.len();
     let n = reduced.nrows().checked_sub(dg)?;
-    (n == 6 * cameras.len()).then(|| reduced.view((dg, dg), (n, n)).into_owned())
+    let block = 6 + problem.model.local_len();
+    (n == block * cameras.len()).then(|| reduced.view((dg, dg), (n, n)).into_owned())
 }

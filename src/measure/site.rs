@@ -1022,7 +1022,7 @@ fn pose_radius_std(
         return None;
     }
     let frames = &t.poses.a1.frames;
-    let rolling = t.poses.rolling.as_ref();
+    let block = cov.nrows() / frames.len().max(1);
     let tls = &t.tls_points;
     let radii: Vec<f64> = (0..POSE_SAMPLES)
         .into_par_iter()
@@ -1033,10 +1033,27 @@ fn pose_radius_std(
                 .iter()
                 .enumerate()
                 .map(|(j, f)| {
-                    let d = Vector6::from_fn(|r, _| delta[6 * j + r]);
+                    let d = Vector6::from_fn(|r, _| delta[block * j + r]);
                     crate::geometry::pose::retract(&f.camera.cam_from_world, &d)
                 })
                 .collect();
+            // With rolling-shutter motions the covariance has their steps after each pose's.
+            let sampled = t.poses.rolling.as_ref().map(|r| RollingPoses {
+                motions: r
+                    .motions
+                    .iter()
+                    .enumerate()
+                    .map(|(j, m)| match block {
+                        12 => crate::camera::rolling::Motion {
+                            angular: m.angular + Vector3::from_fn(|r, _| delta[block * j + 6 + r]),
+                            linear: m.linear + Vector3::from_fn(|r, _| delta[block * j + 9 + r]),
+                        },
+                        _ => *m,
+                    })
+                    .collect(),
+                ..r.clone()
+            });
+            let rolling = sampled.as_ref();
             let targets: Vec<Option<Point3<f64>>> = t
                 .tracks
                 .iter()
