@@ -1319,14 +1319,31 @@ pub fn adjust_feature_tracks(
         .filter(|t| !free.contains(t))
         .map(|t| t.index())
         .collect();
+    let summary = adjust_tracks_free_network(&mut problem, a1.reprojection_sigma, adjust)?;
+    Ok((summary, intrinsics_of(&problem), problem.cam_from_world))
+}
+
+/// Adjusts a feature-track problem (its fixed parameters already set) with a Huber loss at
+/// 3·σ (σ the tracks' robust reprojection σ, at least 0.1 px) and puts the result back in
+/// the frame of its starting points (free-network datum): the tail shared by
+/// [`adjust_feature_tracks`] and the rolling-shutter poses.
+///
+/// # Errors
+///
+/// [`CalibrateError`] when the adjustment or the datum fails.
+pub(crate) fn adjust_tracks_free_network<M: crate::adjust::CameraModel>(
+    problem: &mut Problem<M>,
+    sigma_px: f64,
+    adjust: &AdjustConfig,
+) -> Result<AdjustSummary, CalibrateError> {
     let reference = problem.points.clone();
     let adjust = AdjustConfig {
-        loss: Loss::Huber(3.0 * a1.reprojection_sigma.max(0.1)),
+        loss: Loss::Huber(3.0 * sigma_px.max(0.1)),
         ..*adjust
     };
-    let summary = crate::adjust::bundle_adjust(&mut problem, &adjust)?;
-    free_network_datum(&mut problem, &reference)?;
-    Ok((summary, intrinsics_of(&problem), problem.cam_from_world))
+    let summary = crate::adjust::bundle_adjust(problem, &adjust)?;
+    free_network_datum(problem, &reference)?;
+    Ok(summary)
 }
 
 #[cfg(test)]

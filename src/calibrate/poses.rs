@@ -18,16 +18,18 @@
 //! shutter bundle adjustment", with the readout calibrated), adjusted with the poses, so that
 //! whatever is triangulated afterwards can use each row's own pose ([`RollingPoses::row_pose`]).
 
-use super::pipeline::{CalibrateError, adjust_feature_tracks, feature_problem, refresh_pairs};
+use super::pipeline::{
+    CalibrateError, adjust_feature_tracks, adjust_tracks_free_network, feature_problem,
+    refresh_pairs,
+};
 use super::refine::{Algorithm1, RefineConfig, algorithm1, retriangulate};
 use super::views::FrameCamera;
-use crate::adjust::{
-    AdjustConfig, AdjustSummary, BrownModel, CameraModel as _, Loss, free_network_datum,
-};
+use crate::adjust::{AdjustConfig, AdjustSummary, BrownModel, CameraModel as _};
 use crate::camera::Intrinsics;
 use crate::camera::rolling::{Motion, RowTiming, exp_so3};
 use crate::geometry::Rigid3;
 use crate::io::colmap::Reconstruction;
+use crate::robust::{CHI2_MEDIAN_2DOF, lower_median};
 
 /// Algorithm 1 on poses re-adjusted to fixed intrinsics.
 #[derive(Clone, Debug)]
@@ -142,13 +144,7 @@ pub fn consistent_poses_rolling(
     let sigma_global_px = robust_sigma(&global);
     let mut problem = global.with_rolling_shutter(timing.height_px, timing.readout_s);
     problem.fixed.global = (0..problem.global.len()).collect();
-    let reference = problem.points.clone();
-    let config = AdjustConfig {
-        loss: Loss::Huber(3.0 * a1.reprojection_sigma.max(0.1)),
-        ..*adjust
-    };
-    let summary = crate::adjust::bundle_adjust(&mut problem, &config)?;
-    free_network_datum(&mut problem, &reference)?;
+    let summary = adjust_tracks_free_network(&mut problem, a1.reprojection_sigma, adjust)?;
     let sigma_px = robust_sigma(&problem);
     for (frame, pose) in a1.frames.iter_mut().zip(&problem.cam_from_world) {
         frame.camera.cam_from_world = *pose;
@@ -180,9 +176,7 @@ fn robust_sigma(problem: &crate::adjust::Problem<BrownModel>) -> f64 {
     if r2.is_empty() {
         return f64::NAN;
     }
-    let mid = r2.len() / 2;
-    let (_, m, _) = r2.select_nth_unstable_by(mid, f64::total_cmp);
-    (*m / 1.3863).sqrt()
+    (lower_median(&mut r2) / CHI2_MEDIAN_2DOF).sqrt()
 }
 
 /// One round: the inlier tracks adjusted with the frames' intrinsics fixed, then the tracks
