@@ -123,54 +123,29 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         outln!("{section}");
         index.push_str(&section);
     }
-    if wanted("table3") {
-        log("== Table III: the pipe radius with the device profiles and in situ");
-        let sites = out.join("table3-sites");
-        let results = table3(&t3, &sites, &command, &|m| log(&format!("  {m}")))
-            .map_err(anyhow::Error::msg)?;
-        let mut section = format!(
-            "\n## Table III — pipe radius, pre-calibration against in situ\n\n{} sites ({} frames of {}x{}, seed {}), simulated into `table3-sites/`.\n\n",
-            t3.devices.join(", "),
-            t3.frames,
-            t3.width,
-            t3.width * 9 / 16,
-            t3.seed
-        );
-        section.push_str(&table3_markdown(&results));
-        section.push_str("\nPaper (Table III, real data): 0.5 mm with pre-calibration at best (iPhone 11), in situ about 45 % worse.\n");
-        write(
-            out,
-            "table3.md",
-            &format!("{section}\nProduced by `{command}`.\n"),
-        )?;
-        write(out, "table3.json", &json(&results)?)?;
-        outln!("{section}");
-        index.push_str(&section);
-    }
-    if wanted("video") {
-        log("== Table III, video: the sites filmed as hand-held video");
-        let t3v = Table3Options {
+    let sections = [
+        Table3Section {
+            name: "table3",
+            title: "Table III: the pipe radius with the device profiles and in situ",
+            heading: "Table III — pipe radius, pre-calibration against in situ",
+            sites: "table3-sites",
+            conditions: "",
+            footer: "\nPaper (Table III, real data): 0.5 mm with pre-calibration at best (iPhone 11), in situ about 45 % worse.\n",
+            video: false,
+        },
+        Table3Section {
+            name: "video",
+            title: "Table III, video: the sites filmed as hand-held video",
+            heading: "Table III, video — the sites filmed as hand-held video",
+            sites: "video-sites",
+            conditions: "; rolling shutter at the preset's readout time, 8 ms exposure, 3–9 °/s and 0.05–0.15 m/s at the frames",
+            footer: "The rows' poses use the preset's readout time, as a profile calibrated from the lab video holds it.\n",
             video: true,
-            ..t3.clone()
-        };
-        let sites = out.join("video-sites");
-        let results = table3(&t3v, &sites, &command, &|m| log(&format!("  {m}")))
-            .map_err(anyhow::Error::msg)?;
-        let mut section = format!(
-            "\n## Table III, video — the sites filmed as hand-held video\n\n{} sites ({} frames of {}x{}, seed {}; rolling shutter at the preset's readout time, 8 ms exposure, 3–9 °/s and 0.05–0.15 m/s at the frames), simulated into `video-sites/`. The rows' poses use the preset's readout time, as a profile calibrated from the lab video holds it.\n\n",
-            t3v.devices.join(", "),
-            t3v.frames,
-            t3v.width,
-            t3v.width * 9 / 16,
-            t3v.seed
-        );
-        section.push_str(&table3_markdown(&results));
-        write(
-            out,
-            "video.md",
-            &format!("{section}\nProduced by `{command}`.\n"),
-        )?;
-        write(out, "video.json", &json(&results)?)?;
+        },
+    ];
+    for s in sections.iter().filter(|s| wanted(s.name)) {
+        log(&format!("== {}", s.title));
+        let section = table3_section(s, &t3, out, &command, &log)?;
         outln!("{section}");
         index.push_str(&section);
     }
@@ -181,6 +156,56 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         start.elapsed().as_secs_f64()
     );
     Ok(())
+}
+
+/// One Table III run of `experiments`: the still sites or the sites filmed as video.
+struct Table3Section {
+    name: &'static str,
+    title: &'static str,
+    heading: &'static str,
+    sites: &'static str,
+    conditions: &'static str,
+    footer: &'static str,
+    video: bool,
+}
+
+/// Runs Table III as `s` says, writes `NAME.md` and `NAME.json` under `out` and returns the
+/// markdown section.
+fn table3_section(
+    s: &Table3Section,
+    t3: &Table3Options,
+    out: &Path,
+    command: &str,
+    log: &dyn Fn(&str),
+) -> Result<String> {
+    let options = Table3Options {
+        video: s.video,
+        ..t3.clone()
+    };
+    let results = table3(&options, &out.join(s.sites), command, &|m| {
+        log(&format!("  {m}"))
+    })
+    .map_err(anyhow::Error::msg)?;
+    let mut section = format!(
+        "\n## {}\n\n{} sites ({} frames of {}x{}, seed {}{}), simulated into `{}/`.\n\n",
+        s.heading,
+        options.devices.join(", "),
+        options.frames,
+        options.width,
+        options.width * 9 / 16,
+        options.seed,
+        s.conditions,
+        s.sites,
+    );
+    section.push_str(&table3_markdown(&results));
+    section.push_str(s.footer);
+    write(
+        out,
+        &format!("{}.md", s.name),
+        &format!("{section}\nProduced by `{command}`.\n"),
+    )?;
+    write(out, &format!("{}.json", s.name), &json(&results)?)?;
+    Ok(section)
 }
 
 fn eccentricity_section(r: &EccentricityResult) -> String {
