@@ -8,15 +8,29 @@ mod common;
 use common::pipemeasure;
 use serde_json::Value;
 
-#[test]
-fn the_quick_experiments_write_every_table_and_figure_and_meet_the_goals() {
+/// Runs `pipemeasure experiments --quick --out ex --quiet` with `extra` options and the
+/// repository's calibrations in a fresh folder; returns the folder, the exit code and stdout.
+fn quick_experiments(extra: &[&str]) -> (tempfile::TempDir, i32, String, String) {
     let tmp = tempfile::tempdir().unwrap();
     let calibrations = concat!(env!("CARGO_MANIFEST_DIR"), "/calibrations");
+    let mut args = vec!["experiments", "--quick", "--out", "ex", "--quiet"];
+    args.extend_from_slice(extra);
     let (code, stdout, stderr) = pipemeasure(
         tmp.path(),
-        &["experiments", "--quick", "--out", "ex", "--quiet"],
+        &args,
         &[("PIPEMEASURE_CALIBRATIONS", calibrations)],
     );
+    (tmp, code, stdout, stderr)
+}
+
+/// The JSON file `name` of an experiments folder.
+fn read_json(dir: &std::path::Path, name: &str) -> Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join(name)).unwrap()).unwrap()
+}
+
+#[test]
+fn the_quick_experiments_write_every_table_and_figure_and_meet_the_goals() {
+    let (tmp, code, stdout, stderr) = quick_experiments(&[]);
     assert_eq!(code, 0, "{stderr}");
     let dir = tmp.path().join("ex");
     for name in [
@@ -35,9 +49,7 @@ fn the_quick_experiments_write_every_table_and_figure_and_meet_the_goals() {
         }
     }
     assert!(stdout.contains("Table III"), "{stdout}");
-    let read = |name: &str| -> Value {
-        serde_json::from_str(&std::fs::read_to_string(dir.join(name)).unwrap()).unwrap()
-    };
+    let read = |name: &str| read_json(&dir, name);
 
     // Fig. 7: with exact poses the eccentricity is the fitted centres' whole error, and
     // Algorithm 3 removes it: from three views on, 100x smaller.
@@ -106,27 +118,12 @@ fn an_unknown_experiment_is_a_usage_error_naming_it() {
 /// rows' poses) within 0.2 mm of the simulator's radius. The default run leaves it out.
 #[test]
 fn the_video_table_iii_measures_every_preset_within_its_goal() {
-    let tmp = tempfile::tempdir().unwrap();
-    let calibrations = concat!(env!("CARGO_MANIFEST_DIR"), "/calibrations");
-    let (code, stdout, stderr) = pipemeasure(
-        tmp.path(),
-        &[
-            "experiments",
-            "--quick",
-            "--only",
-            "video",
-            "--out",
-            "ex",
-            "--quiet",
-        ],
-        &[("PIPEMEASURE_CALIBRATIONS", calibrations)],
-    );
+    let (tmp, code, stdout, stderr) = quick_experiments(&["--only", "video"]);
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("Table III, video"), "{stdout}");
     let dir = tmp.path().join("ex");
     assert!(!dir.join("table3.json").exists());
-    let sites: Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("video.json")).unwrap()).unwrap();
+    let sites = read_json(&dir, "video.json");
     let sites = sites.as_array().unwrap();
     assert_eq!(sites.len(), 3);
     for site in sites {
