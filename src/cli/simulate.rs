@@ -5,6 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use pipemeasure::sim::devices::preset;
 use pipemeasure::sim::lab::LabConfig;
+use pipemeasure::sim::plant::{PlantScanConfig, simulate_plant};
 use pipemeasure::sim::render::RenderConfig;
 use pipemeasure::sim::simulate::{
     SfmSource, SimulateOptions, SiteOptions, frames_to_render, simulate_lab, simulate_site,
@@ -24,6 +25,33 @@ pub enum Command {
     /// A pipe site: mock pipes before a target wall, a path around the pipe of interest, dense
     /// observations, the dense cloud, a TLS scan and TLS target coordinates.
     Site(SiteArgs),
+    /// A plant room: pipe runs with elbows, a tee and a valve, a pump, supports, conduits, a
+    /// column, walls, floor and ceiling (parry3d shapes), scanned by a TLS from its stations;
+    /// writes tls_scan.ply and truth.json (every pipe segment and every other object).
+    Plant(PlantArgs),
+}
+
+/// `simulate plant`.
+#[derive(Debug, clap::Args)]
+pub struct PlantArgs {
+    /// Output folder (tls_scan.ply, truth.json).
+    #[arg(long)]
+    out: PathBuf,
+    /// Seed of the room and of the scan's noise.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Scanner stations, 1–4.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=4))]
+    stations: u8,
+    /// Angular step of the scan (mrad), 0.5–20.
+    #[arg(long, default_value_t = 3.0, value_parser = values::step_mrad)]
+    step_mrad: f64,
+    /// Range noise σ (mm).
+    #[arg(long, default_value_t = 1.5, value_parser = values::non_negative)]
+    range_noise_mm: f64,
+    /// Replace an existing simulation in --out.
+    #[arg(long)]
+    force: bool,
 }
 
 /// Options shared by the scenes.
@@ -310,6 +338,35 @@ fn check_out(c: &Common) -> Result<()> {
 
 pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
     match cmd {
+        Command::Plant(args) => {
+            if args.out.join("truth.json").exists() && !args.force {
+                bail!(
+                    "{} already holds a simulation; pass --force to replace it",
+                    args.out.display()
+                );
+            }
+            let config = PlantScanConfig {
+                step_rad: args.step_mrad * 1e-3,
+                range_noise_m: args.range_noise_mm * 1e-3,
+                stations: usize::from(args.stations),
+                ..PlantScanConfig::default()
+            };
+            if !globals.quiet {
+                eprintln!("scanning the plant room from {} stations", args.stations);
+            }
+            let truth = simulate_plant(args.seed, &config, &args.out)
+                .with_context(|| format!("simulating a plant room into {}", args.out.display()))?;
+            let [l, w, h] = truth.room;
+            outln!(
+                "simulated plant room {l:.2} x {w:.2} x {h:.2} m (seed {}): {} pipe segments, {} other objects; TLS scan {} points ({} mixed pixels)\nwritten to {}",
+                args.seed,
+                truth.segments.len(),
+                truth.objects.len(),
+                truth.scan.as_ref().map_or(0, |s| s.points),
+                truth.scan.as_ref().map_or(0, |s| s.mixed_pixels),
+                args.out.display()
+            );
+        }
         Command::Lab(args) => {
             check_out(&args.common)?;
             let opts = options(&args.common)?;

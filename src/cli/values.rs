@@ -37,6 +37,17 @@ pub fn non_negative(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A TLS scan's angular step (mrad): a finite number in [0.5, 20] (finer than 0.5 mrad is
+/// beyond a simulation's memory; coarser than 20 mrad sees no pipe).
+pub fn step_mrad(s: &str) -> Result<f64, String> {
+    let v = number(s)?;
+    if (0.5..=20.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!("{v} must be between 0.5 and 20"))
+    }
+}
+
 /// A target's smallest semi-minor axis: a finite number ≥ 1 px (the detector's own bound).
 pub fn semi_minor_px(s: &str) -> Result<f64, String> {
     let v = number(s)?;

@@ -10,6 +10,7 @@ pub mod bundle;
 pub mod dense;
 pub mod devices;
 pub mod lab;
+pub mod plant;
 pub mod render;
 pub mod scene;
 pub mod sfm;
