@@ -25,6 +25,7 @@ mod fit_cylinder;
 mod frames;
 mod matching;
 mod measure;
+mod pipes;
 mod profile;
 mod progress;
 mod simulate;
@@ -85,6 +86,9 @@ enum Command {
     Frames(frames::Args),
     /// Match circular targets across the frames of an SfM model (paper Algorithms 1–3).
     Match(matching::Args),
+    /// The pipe network of a cloud: every pipe once as straight segments with axis endpoints,
+    /// radius, nominal size and coverage; what is not a pipe refused with the reason.
+    Pipes(pipes::Args),
     /// Show, list or convert device profiles.
     #[command(subcommand)]
     Profile(profile::Command),
@@ -188,6 +192,7 @@ fn run(command: Command, globals: Globals) -> Result<()> {
         Command::Calibrate(args) => calibrate::run(&args, globals),
         Command::FitCylinder(args) => fit_cylinder::run(&args, globals),
         Command::Frames(args) => frames::run(&args, globals),
+        Command::Pipes(args) => pipes::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
     }

@@ -697,17 +697,23 @@ fn fit_among(
         }
     }
     let (var_r, ss) = result.ok_or_else(|| not_found(0))?;
+    Ok(summarise(cloud, &inliers, &cyl, var_r, ss))
+}
+
+/// The fit's statistics from its inliers (curve positions), its cylinder (local frame), the
+/// radius's variance and the residuals' sum of squares.
+fn summarise(cloud: &Cloud, inliers: &[usize], cyl: &Cylinder, var_r: f64, ss: f64) -> CylinderFit {
     // The median absolute residual: non-negative floats order like their bits.
     let mut abs: Vec<u64> = inliers
         .par_iter()
         .map(|&k| cyl.residual(&cloud.point_at(k)).abs().to_bits())
         .collect();
     let middle = abs.len() / 2;
-    let (_, &mut median, _) = abs.select_nth_unstable(middle);
-    let scale = 1.4826 * f64::from_bits(median);
+    let scale = abs.select_nth_unstable(middle).1.to_owned();
+    let scale = 1.4826 * f64::from_bits(scale);
     let mut inlier_indices: Vec<usize> = inliers.iter().map(|&pos| cloud.index_at(pos)).collect();
     inlier_indices.par_sort_unstable();
-    Ok(CylinderFit {
+    CylinderFit {
         cylinder: Cylinder {
             point: cyl.point + cloud.origin,
             direction: cyl.direction,
@@ -718,7 +724,83 @@ fn fit_among(
         inliers: inliers.len(),
         noise_scale: scale,
         inlier_indices,
-    })
+    }
+}
+
+/// A cylinder fitted again to the points `indices` alone (a segment of a pipe that
+/// [`fit_cylinder_among`] found on a longer axis), from `start` (input frame): step 3 on the
+/// supporters among them until they stop changing. Returns the fit and the arc (rad) of the
+/// circumference its inliers fill (10° bins); `None` with fewer than six supporters.
+#[must_use]
+pub fn refit_among(
+    cloud: &Cloud,
+    indices: &[usize],
+    start: &Cylinder,
+    config: &CylinderConfig,
+) -> Option<(CylinderFit, f64)> {
+    let cos_max = config.max_normal_angle.cos();
+    let threshold = (3.0 * cloud.surface_noise).max(1e-6);
+    let mut pool: Vec<usize> = indices.iter().map(|&k| cloud.position(k)).collect();
+    pool.par_sort_unstable();
+    pool.dedup();
+    cloud.prepare_at(&pool);
+    let mut cyl = Cylinder {
+        point: start.point - cloud.origin,
+        ..*start
+    };
+    let mut inliers: Vec<usize> = Vec::new();
+    let mut result = None;
+    for _ in 0..10 {
+        let next: Vec<usize> = pool
+            .iter()
+            .copied()
+            .filter(|&k| supports(cloud, k, &cyl, threshold, cos_max).is_some())
+            .collect();
+        if next.len() < 6 {
+            return None;
+        }
+        let same = next == inliers;
+        inliers = next;
+        let (c, cov, ss) = refine(cloud, &inliers, cyl)?;
+        cyl = c;
+        let dof = (inliers.len() - 5) as f64;
+        result = Some((cov[(4, 4)] * ss / dof, ss));
+        if same {
+            break;
+        }
+    }
+    let (mut var_r, mut ss) = result?;
+    // Then with the band the residuals themselves give, 3 × their robust scale (at least the
+    // cloud's floor): a neighbourhood's noise on a thin pipe far from the scanner includes
+    // its curvature, and so wide a band takes in the mixed pixels behind its silhouette,
+    // which all lie outside it.
+    for _ in 0..10 {
+        let mut abs: Vec<f64> = inliers
+            .iter()
+            .map(|&k| cyl.residual(&cloud.point_at(k)).abs())
+            .collect();
+        let mid = abs.len() / 2;
+        let band = (3.0 * 1.4826 * *abs.select_nth_unstable_by(mid, f64::total_cmp).1)
+            .max(threshold.min(1e-3));
+        let next: Vec<usize> = pool
+            .iter()
+            .copied()
+            .filter(|&k| {
+                supports(cloud, k, &cyl, threshold, cos_max).is_some()
+                    && cyl.residual(&cloud.point_at(k)).abs() <= band
+            })
+            .collect();
+        if next.len() < 6 || next == inliers {
+            break;
+        }
+        inliers = next;
+        let (c, cov, s) = refine(cloud, &inliers, cyl)?;
+        cyl = c;
+        var_r = cov[(4, 4)] * s / (inliers.len() - 5) as f64;
+        ss = s;
+    }
+    let coverage = normal_coverage(cloud, &inliers, &cyl, threshold, cos_max);
+    Some((summarise(cloud, &inliers, &cyl, var_r, ss), coverage))
 }
 
 /// Every cylinder of the cloud, best supported first: fit, remove its inliers, repeat until

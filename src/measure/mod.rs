@@ -6,6 +6,8 @@
 
 pub mod cloud;
 pub mod cylinder;
+pub mod network;
+pub mod nominal;
 pub mod pipe;
 pub mod scale;
 pub mod site;
@@ -15,8 +17,10 @@ mod zorder;
 pub use cloud::{Cloud, CloudError};
 pub use cylinder::{
     Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_all_cylinders, fit_cylinder,
-    fit_cylinder_among,
+    fit_cylinder_among, refit_among,
 };
+pub use network::{Network, NetworkConfig, NetworkError, PipeSegment, extract_network};
+pub use nominal::{NominalSize, PipeMaterial, nominal_size};
 pub use pipe::{
     PipeMeasurement, Reference, Region, Scaling, fit_points, measure_pipe, reference_fit,
     transformed_points,

@@ -1,0 +1,293 @@
+//! `pipemeasure pipes CLOUD [--json] [--csv FILE] [--ply FILE] [--clearance]
+//! [--material M] [--radius-min M --radius-max M] [--seed N]`: the pipe network of a cloud,
+//! every pipe once as straight segments, and what was refused.
+
+use std::io::Write as _;
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use pipemeasure::io::atomic::StagedFile;
+use pipemeasure::io::ply::{PointCloud, stage_binary};
+use pipemeasure::measure::network::{Clearance, Network, clearances};
+use pipemeasure::measure::{CylinderConfig, NetworkConfig, PipeMaterial, extract_network};
+use serde::Serialize;
+
+use super::fit_cylinder::read_points;
+use super::{Globals, NothingFound, usage, values};
+
+/// Arguments of `pipes`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The point cloud (PLY, or E57 by its extension).
+    cloud: PathBuf,
+    /// Print the network as JSON (segments, refused candidates, removed planes, clearances).
+    #[arg(long)]
+    json: bool,
+    /// Also write the segments as CSV.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    /// Also write the cloud coloured by segment (grey: no segment) as PLY.
+    #[arg(long)]
+    ply: Option<PathBuf>,
+    /// Print the smallest distance between every pair of segments (surface to surface).
+    #[arg(long)]
+    clearance: bool,
+    /// The material whose standard sizes are reported.
+    #[arg(long, value_enum, default_value = "steel")]
+    material: MaterialArg,
+    /// Smallest pipe radius of interest (m).
+    #[arg(long, default_value_t = 0.015, value_parser = values::positive)]
+    radius_min: f64,
+    /// Largest pipe radius of interest (m): wider curved surfaces (housings, tanks, a wall's
+    /// bow) are not pipes.
+    #[arg(long, default_value_t = 0.35, value_parser = values::positive)]
+    radius_max: f64,
+    /// Seed of the sampling.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum MaterialArg {
+    /// Carbon steel, ASME B36.10M.
+    Steel,
+    /// Stainless steel, ASME B36.19M.
+    Stainless,
+    /// Ductile iron, AWWA C151.
+    DuctileIron,
+    /// Ductile iron, ISO 2531.
+    DuctileIronIso,
+}
+
+impl From<MaterialArg> for PipeMaterial {
+    fn from(m: MaterialArg) -> Self {
+        match m {
+            MaterialArg::Steel => PipeMaterial::Steel,
+            MaterialArg::Stainless => PipeMaterial::Stainless,
+            MaterialArg::DuctileIron => PipeMaterial::DuctileIron,
+            MaterialArg::DuctileIronIso => PipeMaterial::DuctileIronIso,
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct Output<'a> {
+    schema: &'static str,
+    cloud: String,
+    #[serde(flatten)]
+    network: &'a Network,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    clearances: Option<&'a [Clearance]>,
+}
+
+fn config(args: &Args) -> Result<NetworkConfig> {
+    if args.radius_min >= args.radius_max {
+        return Err(usage(format!(
+            "--radius-min {} must be below --radius-max {}",
+            args.radius_min, args.radius_max
+        )));
+    }
+    let config = NetworkConfig {
+        cylinder: CylinderConfig {
+            radius_min: args.radius_min,
+            radius_max: args.radius_max,
+            seed: args.seed,
+            ..NetworkConfig::default().cylinder
+        },
+        material: args.material.into(),
+        ..NetworkConfig::default()
+    };
+    config
+        .cylinder
+        .validate()
+        .map_err(|e| usage(e.to_string()))?;
+    Ok(config)
+}
+
+fn table(network: &Network) -> String {
+    let mut s = format!(
+        "{:>3}  {:>7}  {:>5}  {:>17}  {:>8}  {:>7}  {:>28}  {:>28}  {:>7}  {:>5}  {:>5}\n",
+        "id",
+        "NPS",
+        "DN",
+        "radius mm",
+        "ΔOD mm",
+        "len m",
+        "start",
+        "end",
+        "inliers",
+        "arc°",
+        "RMSE"
+    );
+    let xyz = |p: &[f64; 3]| format!("({:.3}, {:.3}, {:.3})", p[0], p[1], p[2]);
+    for g in &network.segments {
+        s.push_str(&format!(
+            "{:>3}  {:>7}  {:>5}  {:>8.2} ± {:<6.2}  {:>+8.2}  {:>7.3}  {:>28}  {:>28}  {:>7}  {:>5.0}  {:>5.2}\n",
+            g.id,
+            g.nominal.nps.unwrap_or("-"),
+            g.nominal.dn,
+            g.radius_m * 1e3,
+            g.radius_std_m * 1e3,
+            g.nominal.difference_mm,
+            g.length_m,
+            xyz(&g.start),
+            xyz(&g.end),
+            g.inliers,
+            g.coverage_deg,
+            g.rmse_m * 1e3
+        ));
+    }
+    s
+}
+
+fn refusals(network: &Network) -> String {
+    let mut s = String::new();
+    for r in &network.refused {
+        s.push_str(&format!(
+            "refused: r {:.1} mm, {} points, ({:.3}, {:.3}, {:.3}) to ({:.3}, {:.3}, {:.3}): {}\n",
+            r.radius_m * 1e3,
+            r.inliers,
+            r.start[0],
+            r.start[1],
+            r.start[2],
+            r.end[0],
+            r.end[1],
+            r.end[2],
+            r.refusal
+        ));
+    }
+    for p in &network.planes {
+        s.push_str(&format!(
+            "removed plane: {} points, normal ({:.3}, {:.3}, {:.3}) through ({:.3}, {:.3}, {:.3})\n",
+            p.points, p.normal[0], p.normal[1], p.normal[2], p.point[0], p.point[1], p.point[2]
+        ));
+    }
+    s
+}
+
+fn csv(network: &Network) -> String {
+    let mut s = String::from(
+        "id,x0,y0,z0,x1,y1,z1,length_m,radius_m,radius_std_m,rmse_m,inliers,coverage_deg,standard,nps,dn,od_mm,od_difference_mm\n",
+    );
+    for g in &network.segments {
+        s.push_str(&format!(
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            g.id,
+            g.start[0],
+            g.start[1],
+            g.start[2],
+            g.end[0],
+            g.end[1],
+            g.end[2],
+            g.length_m,
+            g.radius_m,
+            g.radius_std_m,
+            g.rmse_m,
+            g.inliers,
+            g.coverage_deg,
+            g.nominal.standard,
+            g.nominal.nps.unwrap_or(""),
+            g.nominal.dn,
+            g.nominal.outside_diameter_mm,
+            g.nominal.difference_mm
+        ));
+    }
+    s
+}
+
+/// A distinct colour per segment (golden-angle hues), grey for the rest.
+fn coloured(points: &[nalgebra::Vector3<f64>], network: &Network) -> PointCloud {
+    let mut colors = vec![[128u8, 128, 128]; points.len()];
+    for g in &network.segments {
+        let h = (g.id as f64 * 137.508).rem_euclid(360.0) / 60.0;
+        let x = (1.0 - (h % 2.0 - 1.0).abs()) * 255.0;
+        let c = match h as u32 {
+            0 => [255.0, x, 0.0],
+            1 => [x, 255.0, 0.0],
+            2 => [0.0, 255.0, x],
+            3 => [0.0, x, 255.0],
+            4 => [x, 0.0, 255.0],
+            _ => [255.0, 0.0, x],
+        };
+        for &k in &g.inlier_indices {
+            if let Some(slot) = colors.get_mut(k) {
+                *slot = c.map(|v| v as u8);
+            }
+        }
+    }
+    PointCloud {
+        points: points.iter().map(|p| (*p).into()).collect(),
+        colors: Some(colors),
+        ..Default::default()
+    }
+}
+
+pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    let config = config(args)?;
+    let points = read_points(&args.cloud)?;
+    if !globals.quiet {
+        eprintln!(
+            "{}: {} points; removing planes, searching pipes",
+            args.cloud.display(),
+            points.len()
+        );
+    }
+    let network =
+        extract_network(&points, &config).with_context(|| format!("{}", args.cloud.display()))?;
+    let pairs = args.clearance.then(|| clearances(&network.segments));
+    if args.json {
+        let out = Output {
+            schema: "pipemeasure.pipes/1",
+            cloud: args.cloud.display().to_string(),
+            network: &network,
+            clearances: pairs.as_deref(),
+        };
+        outln!("{}", serde_json::to_string_pretty(&out)?);
+    } else {
+        outln!(
+            "{} pipe segments in {} points ({} planes removed, {} components searched)",
+            network.segments.len(),
+            network.points,
+            network.planes.len(),
+            network.components
+        );
+        if !network.segments.is_empty() {
+            outln!("{}", table(&network));
+        }
+        outln!("{}", refusals(&network));
+        if let Some(pairs) = &pairs {
+            for c in pairs {
+                outln!("clearance {} – {}: {:.1} mm", c.a, c.b, c.distance_m * 1e3);
+            }
+        }
+    }
+    if network.segments.is_empty() {
+        // Nothing found: no output file either.
+        return Err(NothingFound(format!(
+            "{}: no pipe segment ({} candidates refused, {} planes removed)",
+            args.cloud.display(),
+            network.refused.len(),
+            network.planes.len()
+        ))
+        .into());
+    }
+    // Files staged first and moved into place together: nothing half-written.
+    let mut staged: Vec<StagedFile> = Vec::new();
+    if let Some(path) = &args.csv {
+        let text = csv(&network);
+        staged.push(StagedFile::write(path, |w| w.write_all(text.as_bytes()))?);
+    }
+    if let Some(path) = &args.ply {
+        // Non-finite points were skipped by the cloud: colours follow the finite points.
+        let finite: Vec<nalgebra::Vector3<f64>> = points
+            .iter()
+            .copied()
+            .filter(|p| p.iter().all(|v| v.is_finite()))
+            .collect();
+        staged.push(stage_binary(path, &coloured(&finite, &network))?);
+    }
+    for file in staged {
+        file.commit()?;
+    }
+    Ok(())
+}
