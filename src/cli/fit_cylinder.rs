@@ -5,9 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use nalgebra::Vector3;
-use pipemeasure::measure::{
-    Cloud, CylinderConfig, CylinderFit, Region, fit_all_cylinders, fit_cylinder,
-};
+use pipemeasure::measure::{Cloud, CylinderConfig, CylinderFit, Region, fit_cylinder};
 use serde::Serialize;
 
 use super::{Globals, usage, values};
@@ -21,7 +19,8 @@ pub struct Args {
     /// (with `--all`, one such object per line).
     #[arg(long)]
     json: bool,
-    /// Report every cylinder found (fitted and removed in turn), best supported first.
+    /// Report every pipe, once, as straight segments (the engine of `pipemeasure pipes`),
+    /// best supported first.
     #[arg(long)]
     all: bool,
     #[command(flatten)]
@@ -135,17 +134,11 @@ pub fn run(args: &Args, _globals: Globals) -> Result<()> {
     if let Some(r) = &region {
         points.retain(|p| r.contains(p));
     }
+    if args.all {
+        return run_all(args, &points, config);
+    }
     let cloud = Cloud::new(&points).with_context(|| format!("{}", args.cloud.display()))?;
-    let fits = if args.all {
-        let all = fit_all_cylinders(&cloud, &config, 16);
-        if all.is_empty() {
-            // Report why, with the not-found exit code.
-            fit_cylinder(&cloud, &config)?;
-        }
-        all
-    } else {
-        vec![fit_cylinder(&cloud, &config)?]
-    };
+    let fits = vec![fit_cylinder(&cloud, &config)?];
     for f in &fits {
         if args.json {
             outln!("{}", serde_json::to_string(&out_of(f))?);
@@ -163,6 +156,81 @@ pub fn run(args: &Args, _globals: Globals) -> Result<()> {
                 d.x,
                 d.y,
                 d.z
+            );
+        }
+    }
+    Ok(())
+}
+
+#[derive(Serialize)]
+struct SegmentOut<'a> {
+    #[serde(flatten)]
+    fit: FitOut,
+    start: [f64; 3],
+    end: [f64; 3],
+    length_m: f64,
+    nominal: &'a pipemeasure::measure::NominalSize,
+}
+
+/// `--all`: the pipe network's engine ([`pipemeasure::measure::extract_network`]): every pipe
+/// once, as straight segments, walls and boxes refused (`pipemeasure pipes` says why).
+fn run_all(args: &Args, points: &[Vector3<f64>], config: CylinderConfig) -> Result<()> {
+    let network = pipemeasure::measure::extract_network(
+        points,
+        &pipemeasure::measure::NetworkConfig {
+            cylinder: config,
+            ..Default::default()
+        },
+    )
+    .with_context(|| format!("{}", args.cloud.display()))?;
+    if network.segments.is_empty() {
+        return Err(
+            anyhow::Error::new(pipemeasure::measure::CylinderError::NotFound {
+                best: network.refused.iter().map(|r| r.inliers).max().unwrap_or(0),
+                required: 1,
+            })
+            .context(format!(
+                "{}: no pipe ({} candidates refused; `pipemeasure pipes` lists why)",
+                args.cloud.display(),
+                network.refused.len()
+            )),
+        );
+    }
+    for g in &network.segments {
+        let (a, d, l) = g.axis();
+        let f = FitOut {
+            radius_m: g.radius_m,
+            radius_std_m: g.radius_std_m,
+            rmse_m: g.rmse_m,
+            inliers: g.inliers,
+            axis: Axis {
+                point: a.into(),
+                direction: d.into(),
+            },
+        };
+        if args.json {
+            let out = SegmentOut {
+                fit: f,
+                start: g.start,
+                end: g.end,
+                length_m: l,
+                nominal: &g.nominal,
+            };
+            outln!("{}", serde_json::to_string(&out)?);
+        } else {
+            outln!(
+                "radius {:.2} ± {:.2} mm, RMSE {:.2} mm, {} inliers; axis from ({:.4}, {:.4}, {:.4}) to ({:.4}, {:.4}, {:.4}), {:.3} m",
+                g.radius_m * 1e3,
+                g.radius_std_m * 1e3,
+                g.rmse_m * 1e3,
+                g.inliers,
+                g.start[0],
+                g.start[1],
+                g.start[2],
+                g.end[0],
+                g.end[1],
+                g.end[2],
+                l
             );
         }
     }

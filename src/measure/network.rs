@@ -94,7 +94,7 @@ impl Default for NetworkConfig {
             gap_m: 0.25,
             min_length_m: 0.3,
             min_length_diameters: 2.0,
-            min_coverage_rad: 60f64.to_radians(),
+            min_coverage_rad: std::f64::consts::FRAC_PI_2,
             min_normal_turn: 0.2,
             max_normal_deviation: 12f64.to_radians(),
             max_shape_departure_m: 1.2e-3,
@@ -1178,7 +1178,41 @@ fn end_of(
     if let Some(t) = elbow_tangent(&near, tail) {
         return at + d * t;
     }
+    if let Some(t) = rim_start(&near) {
+        return at + d * t;
+    }
     at
+}
+
+/// A flange's rim just beyond the end whose faces no station saw (the flange's shadow hides
+/// the pipe's last centimetres and its front face): points 4 mm to 10 cm off the pipe's
+/// surface within 3 mm of their median offset, normals radial, around at least 120° of the axis;
+/// the flange's front is where the rim begins (the 5th percentile of their axial offsets).
+fn rim_start(pts: &[EndPoint]) -> Option<f64> {
+    let rim: Vec<&EndPoint> = pts
+        .iter()
+        .filter(|p| (-0.01..=0.08).contains(&p.0) && p.1 > 0.004 && p.1 < 0.1 && p.3 <= 0.5)
+        .collect();
+    if rim.len() < 15 {
+        return None;
+    }
+    // The rim's radius: the median offset; its points those within 3 mm of it (a valve's
+    // body behind the flange lies further in).
+    let mut e: Vec<f64> = rim.iter().map(|p| p.1).collect();
+    let mid = e.len() / 2;
+    let radius = *e.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let rim: Vec<&&EndPoint> = rim
+        .iter()
+        .filter(|p| (p.1 - radius).abs() <= 0.003)
+        .collect();
+    if rim.len() < 15 || filled_arc(rim.iter().map(|p| p.2[1].atan2(p.2[0]))) < 120f64.to_radians()
+    {
+        return None;
+    }
+    let q = |v: &[f64], f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+    let mut t: Vec<f64> = rim.iter().map(|p| p.0).collect();
+    t.sort_by(f64::total_cmp);
+    Some(q(&t, 0.05))
 }
 
 /// The axial offset of a face just beyond the end ([`end_of`]), up to `reach`, if there is
