@@ -162,3 +162,45 @@ fn a_scan_without_pipes_exits_3_with_what_was_refused() {
     assert!(stdout.contains("0 pipe segments"), "{stdout}");
     assert!(!tmp.path().join("p.csv").exists());
 }
+
+/// A pipe whose scan has NaN rows among its points: the NaN points are skipped, the pipe is
+/// found at its radius (no panic, no error).
+#[test]
+fn nan_points_are_skipped() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut points = Vec::new();
+    for i in 0..1500 {
+        let x = 1.5 * i as f64 / 1500.0;
+        for k in 0..60 {
+            let a = std::f64::consts::TAU * (k as f64 + 0.37 * (i % 7) as f64) / 60.0;
+            let r = 0.05715 + 0.0005 * (((i * 31 + k * 17) % 11) as f64 / 5.0 - 1.0);
+            points.push(nalgebra::Point3::new(x, r * a.cos(), 1.0 + r * a.sin()));
+        }
+        if i % 10 == 0 {
+            points.push(nalgebra::Point3::new(f64::NAN, 0.0, f64::NAN));
+        }
+    }
+    let cloud = pipemeasure::io::ply::PointCloud::from_points(points);
+    pipemeasure::io::ply::write_binary(&tmp.path().join("pipe.ply"), &cloud).unwrap();
+    let (code, stdout, stderr) =
+        pipemeasure(tmp.path(), &["pipes", "pipe.ply", "--json", "--quiet"], &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let network: Value = serde_json::from_str(&stdout).unwrap();
+    assert_eq!(network["points"].as_u64().unwrap(), 90_000);
+    let segments = network["segments"].as_array().unwrap();
+    assert_eq!(segments.len(), 1, "{stdout}");
+    let r = segments[0]["radius_m"].as_f64().unwrap();
+    assert!((r - 0.05715).abs() < 0.1e-3, "{r}");
+}
+
+/// A PLY whose header claims 10⁹ points over a short body: a clear error naming the file,
+/// exit code 1, before any allocation of the claimed size.
+#[test]
+fn a_lying_vertex_count_is_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let body = "ply\nformat ascii 1.0\nelement vertex 1000000000\nproperty double x\nproperty double y\nproperty double z\nend_header\n0 0 0\n1 1 1\n";
+    std::fs::write(tmp.path().join("lying.ply"), body).unwrap();
+    let (code, _, stderr) = pipemeasure(tmp.path(), &["pipes", "lying.ply", "--quiet"], &[]);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(stderr.contains("lying.ply"), "{stderr}");
+}
