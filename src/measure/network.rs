@@ -65,8 +65,8 @@ pub struct NetworkConfig {
     /// Largest median angle between the normals and the radial direction (rad): a few
     /// degrees on a pipe (8° on a thin one far away), more on two thin conduits side by side.
     pub max_normal_deviation: f64,
-    /// Largest systematic departure of the points from the circle ([`shape_departure`], m):
-    /// a tenth of a millimetre on a round pipe (ASTM A530's out-of-roundness, 1.5 % of the
+    /// Largest systematic departure of the points from the circle (m; per 10° of azimuth the
+    /// mean residual, their RMS less the noise's share): a tenth of a millimetre on a round pipe (ASTM A530's out-of-roundness, 1.5 % of the
     /// outside diameter, is 0.3 mm RMS on a 2-inch pipe), millimetres on a box's edge.
     pub max_shape_departure_m: f64,
     /// Largest angle between two axes that are one (rad).
