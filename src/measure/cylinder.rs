@@ -345,13 +345,23 @@ fn normal_coverage(
     cos_max: f64,
 ) -> f64 {
     let (e1, e2) = cyl.cross_section_basis();
+    filled_arc(
+        idx.iter()
+            .filter(|&&k| supports(cloud, k, cyl, threshold, cos_max).is_some())
+            .map(|&k| {
+                let u = cyl.radial(&cloud.point_at(k));
+                u.dot(&e2).atan2(u.dot(&e1))
+            }),
+    )
+}
+
+/// The arc (rad) that azimuths (from `atan2`, in [−π, π]) fill: the number of filled 10° bins
+/// (each holding at least [`FILLED_BIN_FRACTION`] of the mean count of the non-empty bins)
+/// times 10°; 0 for fewer than three azimuths.
+pub(crate) fn filled_arc(azimuths: impl Iterator<Item = f64>) -> f64 {
     let mut bins = [0usize; COVERAGE_BINS];
-    for &k in idx {
-        if supports(cloud, k, cyl, threshold, cos_max).is_none() {
-            continue;
-        }
-        let u = cyl.radial(&cloud.point_at(k));
-        let turn = u.dot(&e2).atan2(u.dot(&e1)) / std::f64::consts::TAU + 0.5;
+    for a in azimuths {
+        let turn = a / std::f64::consts::TAU + 0.5;
         let bin = ((turn * COVERAGE_BINS as f64) as usize).min(COVERAGE_BINS - 1);
         bins[bin] += 1;
     }

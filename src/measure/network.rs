@@ -29,7 +29,9 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cloud::{Cloud, CloudError, plane_of};
-use super::cylinder::{Cylinder, CylinderConfig, CylinderError, fit_cylinder_among, refit_among};
+use super::cylinder::{
+    Cylinder, CylinderConfig, CylinderError, filled_arc, fit_cylinder_among, refit_among,
+};
 use super::nominal::{NominalSize, PipeMaterial, nominal_size};
 
 /// How to extract the network.
@@ -680,17 +682,19 @@ fn remove_planes(
         };
         // Least squares on the inliers, twice.
         let mut inliers: Vec<usize> = Vec::new();
+        let mut mean = Vector3::zeros();
         for _ in 0..2 {
             inliers = remaining
                 .par_iter()
                 .copied()
                 .filter(|&q| on_plane(q, &n, d))
                 .collect();
-            let Some((normal, mean, _)) = plane_of(inliers.iter().map(|&q| cloud.point_at(q)))
+            let Some((normal, centre, _)) = plane_of(inliers.iter().map(|&q| cloud.point_at(q)))
             else {
                 break;
             };
             n = normal;
+            mean = centre;
             d = n.dot(&mean);
         }
         let mut drop = vec![false; cloud.len()];
@@ -709,10 +713,6 @@ fn remove_planes(
             }
             continue;
         }
-        let mean = inliers
-            .iter()
-            .fold(Vector3::zeros(), |a, &q| a + cloud.point_at(q))
-            / inliers.len() as f64;
         planes.push(RemovedPlane {
             normal: n.into(),
             point: (mean + cloud.origin).into(),
@@ -865,25 +865,6 @@ pub fn clearances(segments: &[PipeSegment]) -> Vec<Clearance> {
             })
         })
         .collect()
-}
-
-/// Filled 10° bins of azimuths (rad, any range) times 10°: a bin is filled with at least a
-/// fifth of the mean count of the non-empty bins.
-fn filled_arc(azimuths: impl Iterator<Item = f64>) -> f64 {
-    const BINS: usize = 36;
-    let mut bins = [0usize; BINS];
-    for a in azimuths {
-        let turn = (a / std::f64::consts::TAU).rem_euclid(1.0);
-        bins[((turn * BINS as f64) as usize).min(BINS - 1)] += 1;
-    }
-    let total: usize = bins.iter().sum();
-    let non_empty = bins.iter().filter(|&&c| c > 0).count();
-    if non_empty == 0 || total < 3 {
-        return 0.0;
-    }
-    let mean = total as f64 / non_empty as f64;
-    let filled = bins.iter().filter(|&&c| c as f64 >= 0.2 * mean).count();
-    filled as f64 * std::f64::consts::TAU / BINS as f64
 }
 
 /// The arc the normals of the points `idx` fill about `c`'s axis (each normal turned outward).
