@@ -65,22 +65,27 @@ impl SearchArgs {
     /// The fitting configuration, checked: every value comes from an option, so what the
     /// library refuses is a usage error.
     pub fn config(&self) -> Result<CylinderConfig> {
-        if self.radius_min >= self.radius_max {
-            return Err(usage(format!(
-                "--radius-min {} must be below --radius-max {}",
-                self.radius_min, self.radius_max
-            )));
-        }
-        let config = CylinderConfig {
+        checked(CylinderConfig {
             radius_min: self.radius_min,
             radius_max: self.radius_max,
             axis_hint: self.axis_hint.map(|h| (h, 20f64.to_radians())),
             seed: self.seed,
             ..CylinderConfig::default()
-        };
-        config.validate().map_err(|e| usage(e.to_string()))?;
-        Ok(config)
+        })
     }
+}
+
+/// A cylinder configuration made from options, checked: `--radius-min` below `--radius-max`,
+/// and what the library refuses is a usage error.
+pub(super) fn checked(config: CylinderConfig) -> Result<CylinderConfig> {
+    if config.radius_min >= config.radius_max {
+        return Err(usage(format!(
+            "--radius-min {} must be below --radius-max {}",
+            config.radius_min, config.radius_max
+        )));
+    }
+    config.validate().map_err(|e| usage(e.to_string()))?;
+    Ok(config)
 }
 
 /// The finite points of a PLY or E57 cloud; none at all is an error naming the file.

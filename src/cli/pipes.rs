@@ -12,8 +12,8 @@ use pipemeasure::measure::network::{Clearance, Network, clearances};
 use pipemeasure::measure::{CylinderConfig, NetworkConfig, PipeMaterial, extract_network};
 use serde::Serialize;
 
-use super::fit_cylinder::read_points;
-use super::{Globals, NothingFound, usage, values};
+use super::fit_cylinder::{checked, read_points};
+use super::{Globals, NothingFound, values};
 
 /// Arguments of `pipes`.
 #[derive(Debug, clap::Args)]
@@ -81,27 +81,16 @@ struct Output<'a> {
 }
 
 fn config(args: &Args) -> Result<NetworkConfig> {
-    if args.radius_min >= args.radius_max {
-        return Err(usage(format!(
-            "--radius-min {} must be below --radius-max {}",
-            args.radius_min, args.radius_max
-        )));
-    }
-    let config = NetworkConfig {
-        cylinder: CylinderConfig {
+    Ok(NetworkConfig {
+        cylinder: checked(CylinderConfig {
             radius_min: args.radius_min,
             radius_max: args.radius_max,
             seed: args.seed,
             ..NetworkConfig::default().cylinder
-        },
+        })?,
         material: args.material.into(),
         ..NetworkConfig::default()
-    };
-    config
-        .cylinder
-        .validate()
-        .map_err(|e| usage(e.to_string()))?;
-    Ok(config)
+    })
 }
 
 fn table(network: &Network) -> String {
@@ -278,13 +267,8 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         staged.push(StagedFile::write(path, |w| w.write_all(text.as_bytes()))?);
     }
     if let Some(path) = &args.ply {
-        // Non-finite points were skipped by the cloud: colours follow the finite points.
-        let finite: Vec<nalgebra::Vector3<f64>> = points
-            .iter()
-            .copied()
-            .filter(|p| p.iter().all(|v| v.is_finite()))
-            .collect();
-        staged.push(stage_binary(path, &coloured(&finite, &network))?);
+        // `read_points` gives the finite points only, the cloud's indices into them.
+        staged.push(stage_binary(path, &coloured(&points, &network))?);
     }
     for file in staged {
         file.commit()?;
