@@ -42,16 +42,16 @@ fn endpoint_error(s: &Value, g: &Value) -> f64 {
     ((a - p).norm().max((b - q).norm())).min((a - q).norm().max((b - p).norm()))
 }
 
-fn check_room(seed: u64) {
+/// Checks `pipes` on room `seed` (simulated with the options `sim`) against its truth;
+/// returns the network's JSON.
+fn check_room(seed: u64, sim: &[&str]) -> Value {
     let tmp = tempfile::tempdir().unwrap();
     let seed_arg = seed.to_string();
-    let (code, _, stderr) = pipemeasure(
-        tmp.path(),
-        &[
-            "simulate", "plant", "--out", "room", "--seed", &seed_arg, "--quiet",
-        ],
-        &[],
-    );
+    let mut args = vec![
+        "simulate", "plant", "--out", "room", "--seed", &seed_arg, "--quiet",
+    ];
+    args.extend_from_slice(sim);
+    let (code, _, stderr) = pipemeasure(tmp.path(), &args, &[]);
     assert_eq!(code, 0, "{stderr}");
     let truth: Value =
         serde_json::from_str(&std::fs::read_to_string(tmp.path().join("room/truth.json")).unwrap())
@@ -99,33 +99,67 @@ fn check_room(seed: u64) {
     for (k, m) in matched.iter().enumerate() {
         assert!(m, "seed {seed}: not a pipe of the truth: {}", found[k]);
     }
-    // The CSV has a row per segment; the coloured PLY every point of the scan.
+    // The CSV has a row per segment; the coloured PLY every point searched: the whole scan,
+    // or one point in `search_stride` of it.
     let csv = std::fs::read_to_string(tmp.path().join("pipes.csv")).unwrap();
     assert_eq!(csv.lines().count(), found.len() + 1);
     let ply = pipemeasure::io::ply::read(&tmp.path().join("pipes.ply")).unwrap();
+    let scanned = truth["scan"]["points"].as_u64().unwrap() as usize;
+    assert_eq!(
+        network["points_in_file"].as_u64().unwrap() as usize,
+        scanned
+    );
     assert_eq!(
         ply.cloud.len(),
         network["points"].as_u64().unwrap() as usize
     );
-    assert_eq!(
-        ply.cloud.len(),
-        truth["scan"]["points"].as_u64().unwrap() as usize
-    );
+    let stride = network["search_stride"].as_u64().unwrap() as usize;
+    if stride == 1 {
+        assert_eq!(ply.cloud.len(), scanned);
+    } else {
+        // A hashed choice of one point in `stride`: within 1 % of the expected count.
+        let expected = scanned as f64 / stride as f64;
+        assert!(
+            (ply.cloud.len() as f64 - expected).abs() < 0.01 * expected,
+            "{} points searched, {expected} expected",
+            ply.cloud.len()
+        );
+    }
+    network
 }
 
 #[test]
 fn plant_room_seed_1() {
-    check_room(1);
+    assert_eq!(check_room(1, &[])["search_stride"], 1);
 }
 
 #[test]
 fn plant_room_seed_2() {
-    check_room(2);
+    check_room(2, &[]);
 }
 
 #[test]
 fn plant_room_seed_3() {
-    check_room(3);
+    check_room(3, &[]);
+}
+
+/// A scan denser than the search's budget (room seed 1 at 2 mrad instead of 3: 8.5 M points,
+/// the budget 6 M): one point in two searched — as dense as the 3 mrad scan — and each segment
+/// re-fitted on every point of the scan near it: the acceptance holds, and a segment's inliers
+/// are about twice what the searched points gave.
+#[test]
+fn a_scan_beyond_the_budget_is_searched_decimated_and_refitted_on_every_point() {
+    let network = check_room(1, &["--step-mrad", "2"]);
+    assert_eq!(network["search_stride"], 2);
+    assert!(network["points"].as_u64().unwrap() <= 6_000_000);
+    for g in network["segments"].as_array().unwrap() {
+        let inliers = g["inliers"].as_u64().unwrap() as f64;
+        let searched = g["searched_inliers"].as_u64().unwrap() as f64;
+        assert!(
+            inliers > 1.6 * searched,
+            "{g}: {inliers} inliers on the full scan, {searched} in the search"
+        );
+    }
 }
 
 /// A cloud with no pipe (a floor and a box): exit code 3, and the output says what was

@@ -5,14 +5,16 @@
 use std::io::Write as _;
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use pipemeasure::io::atomic::StagedFile;
 use pipemeasure::io::ply::{PointCloud, stage_binary};
 use pipemeasure::measure::network::{Clearance, Network, clearances};
-use pipemeasure::measure::{CylinderConfig, NetworkConfig, PipeMaterial, extract_network};
+use pipemeasure::measure::scan::{Pass, ScanConfig, extract_network_from};
+use pipemeasure::measure::{CylinderConfig, NetworkConfig, PipeMaterial};
 use serde::Serialize;
 
-use super::fit_cylinder::{checked, read_points};
+use super::fit_cylinder::checked;
+use super::progress::counter;
 use super::{Globals, NothingFound, values};
 
 /// Arguments of `pipes`.
@@ -45,6 +47,22 @@ pub struct Args {
     /// Seed of the sampling.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Most points searched: a larger scan is read in chunks and every n-th point searched
+    /// (the same scan at a coarser step), and each pipe found is then re-fitted on every point
+    /// of the scan near it. Bounds the memory, whatever the scan's size.
+    #[arg(long, default_value_t = ScanConfig::default().search_points, value_parser = at_least_1000)]
+    search_points: usize,
+}
+
+/// A point budget of at least a thousand points.
+fn at_least_1000(s: &str) -> Result<usize, String> {
+    let n: usize = s
+        .parse()
+        .map_err(|e| format!("`{s}` is not a count of points: {e}"))?;
+    if n < 1000 {
+        return Err(format!("{n} points are too few to search (at least 1000)"));
+    }
+    Ok(n)
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -74,22 +92,30 @@ impl From<MaterialArg> for PipeMaterial {
 struct Output<'a> {
     schema: &'static str,
     cloud: String,
+    /// Points in the file (finite or not).
+    points_in_file: usize,
+    /// Every how many finite points one was searched (1: all).
+    search_stride: usize,
     #[serde(flatten)]
     network: &'a Network,
     #[serde(skip_serializing_if = "Option::is_none")]
     clearances: Option<&'a [Clearance]>,
 }
 
-fn config(args: &Args) -> Result<NetworkConfig> {
-    Ok(NetworkConfig {
-        cylinder: checked(CylinderConfig {
-            radius_min: args.radius_min,
-            radius_max: args.radius_max,
-            seed: args.seed,
-            ..NetworkConfig::default().cylinder
-        })?,
-        material: args.material.into(),
-        ..NetworkConfig::default()
+fn config(args: &Args) -> Result<ScanConfig> {
+    Ok(ScanConfig {
+        network: NetworkConfig {
+            cylinder: checked(CylinderConfig {
+                radius_min: args.radius_min,
+                radius_max: args.radius_max,
+                seed: args.seed,
+                ..NetworkConfig::default().cylinder
+            })?,
+            material: args.material.into(),
+            ..NetworkConfig::default()
+        },
+        search_points: args.search_points,
+        ..ScanConfig::default()
     })
 }
 
@@ -213,22 +239,44 @@ fn coloured(points: &[nalgebra::Vector3<f64>], network: &Network) -> PointCloud 
 
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let config = config(args)?;
-    let points = read_points(&args.cloud)?;
+    let bar = counter(&format!("{}: reading", args.cloud.display()), globals.quiet);
+    let scan = extract_network_from(&args.cloud, &config, &mut |pass, n| {
+        if pass == Pass::Bands && bar.message().ends_with("reading") {
+            bar.set_message(format!(
+                "{}: re-fitting the pipes on every point",
+                args.cloud.display()
+            ));
+        }
+        bar.set_position(n as u64);
+    });
+    bar.finish_and_clear();
+    let scan = scan?;
     if !globals.quiet {
-        eprintln!(
-            "{}: {} points; removing planes, searching pipes",
-            args.cloud.display(),
-            points.len()
-        );
+        if scan.stride > 1 {
+            eprintln!(
+                "{}: {} points, every {}th ({}) searched; pipes re-fitted on every point",
+                args.cloud.display(),
+                scan.read.vertices_in_file,
+                scan.stride,
+                scan.searched.len()
+            );
+        } else {
+            eprintln!(
+                "{}: {} points; removing planes, searching pipes",
+                args.cloud.display(),
+                scan.searched.len()
+            );
+        }
     }
-    let network =
-        extract_network(&points, &config).with_context(|| format!("{}", args.cloud.display()))?;
+    let network = &scan.network;
     let pairs = args.clearance.then(|| clearances(&network.segments));
     if args.json {
         let out = Output {
             schema: "pipemeasure.pipes/1",
             cloud: args.cloud.display().to_string(),
-            network: &network,
+            points_in_file: scan.read.vertices_in_file,
+            search_stride: scan.stride,
+            network,
             clearances: pairs.as_deref(),
         };
         outln!("{}", serde_json::to_string_pretty(&out)?);
@@ -241,9 +289,9 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             network.components
         );
         if !network.segments.is_empty() {
-            outln!("{}", table(&network));
+            outln!("{}", table(network));
         }
-        outln!("{}", refusals(&network));
+        outln!("{}", refusals(network));
         if let Some(pairs) = &pairs {
             for c in pairs {
                 outln!("clearance {} – {}: {:.1} mm", c.a, c.b, c.distance_m * 1e3);
@@ -263,12 +311,13 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     // Files staged first and moved into place together: nothing half-written.
     let mut staged: Vec<StagedFile> = Vec::new();
     if let Some(path) = &args.csv {
-        let text = csv(&network);
+        let text = csv(network);
         staged.push(StagedFile::write(path, |w| w.write_all(text.as_bytes()))?);
     }
     if let Some(path) = &args.ply {
-        // `read_points` gives the finite points only, the cloud's indices into them.
-        staged.push(stage_binary(path, &coloured(&points, &network))?);
+        // The points searched (all finite points, or every stride-th), the segments' indices
+        // into them.
+        staged.push(stage_binary(path, &coloured(&scan.searched, network))?);
     }
     for file in staged {
         file.commit()?;

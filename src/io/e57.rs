@@ -8,7 +8,7 @@ use std::path::Path;
 use nalgebra::Point3;
 
 use super::error::{ReadError, ReadErrorKind, open_file};
-use super::ply::{PlyRead, PointCloud};
+use super::ply::{PlyRead, PointCloud, StreamSummary};
 
 /// Reads every scan of an E57 file into one cloud (colours and intensity are not kept).
 ///
@@ -34,32 +34,114 @@ fn read_from<T: std::io::Read + std::io::Seek>(
     path: &Path,
     source: T,
 ) -> Result<PlyRead, ReadError> {
+    let mut points = Vec::new();
+    let summary = each_point(path, source, &mut |p| points.push(p))?;
+    Ok(PlyRead {
+        cloud: PointCloud::from_points(points),
+        vertices_in_file: summary.vertices_in_file,
+        skipped_non_finite: summary.skipped_non_finite,
+    })
+}
+
+/// Reads the points of every scan of an E57 file in chunks of at most `chunk` points, each
+/// handed to `f` in file order and then forgotten (the streamed twin of [`read`]). An error
+/// comes after some chunks were handed on: the caller must discard what it built from them.
+///
+/// # Errors
+///
+/// As [`read`].
+pub fn stream(
+    path: &Path,
+    chunk: usize,
+    f: &mut dyn FnMut(&[Point3<f64>]),
+) -> Result<StreamSummary, ReadError> {
+    let file = open_file(path)?;
+    let chunk = chunk.max(1);
+    let mut buf = Vec::with_capacity(chunk.min(1 << 20));
+    let summary = each_point(path, std::io::BufReader::new(file), &mut |p| {
+        buf.push(p);
+        if buf.len() >= chunk {
+            f(&buf);
+            buf.clear();
+        }
+    })?;
+    if !buf.is_empty() {
+        f(&buf);
+    }
+    Ok(summary)
+}
+
+/// Hands every valid point of every scan of the E57 data in `source` to `f`, in the file's
+/// common coordinate system.
+fn each_point<T: std::io::Read + std::io::Seek>(
+    path: &Path,
+    source: T,
+    f: &mut dyn FnMut(Point3<f64>),
+) -> Result<StreamSummary, ReadError> {
     let invalid = |e: e57::Error| ReadError::new(path, ReadErrorKind::Invalid(format!("E57: {e}")));
     let mut reader = e57::E57Reader::new(source).map_err(invalid)?;
-    let mut points = Vec::new();
-    let (mut in_file, mut skipped) = (0usize, 0usize);
+    let mut summary = StreamSummary::default();
     for (k, pc) in reader.pointclouds().iter().enumerate() {
         let scan = reader.pointcloud_simple(pc).map_err(invalid)?;
         for p in scan {
             let p = p.map_err(|e| {
                 ReadError::new(path, ReadErrorKind::Invalid(format!("E57 scan {k}: {e}")))
             })?;
-            in_file += 1;
+            summary.vertices_in_file += 1;
             match p.cartesian {
                 e57::CartesianCoordinate::Valid { x, y, z }
                     if x.is_finite() && y.is_finite() && z.is_finite() =>
                 {
-                    points.push(Point3::new(x, y, z));
+                    f(Point3::new(x, y, z));
                 }
-                _ => skipped += 1,
+                _ => summary.skipped_non_finite += 1,
             }
         }
     }
-    Ok(PlyRead {
-        cloud: PointCloud::from_points(points),
-        vertices_in_file: in_file,
-        skipped_non_finite: skipped,
-    })
+    Ok(summary)
+}
+
+/// Streams the points of a cloud by its extension, as [`read_cloud`] reads them: `.e57`
+/// through [`stream`], anything else through [`super::ply::stream_points`].
+///
+/// # Errors
+///
+/// [`ReadError`] of the reader.
+pub fn stream_cloud(
+    path: &Path,
+    chunk: usize,
+    f: &mut dyn FnMut(&[Point3<f64>]),
+) -> Result<StreamSummary, ReadError> {
+    if is_e57(path) {
+        stream(path, chunk, f)
+    } else {
+        super::ply::stream_points(path, chunk, f)
+    }
+}
+
+/// The number of points a cloud's file declares (PLY: its header's vertex count; E57: the
+/// records of all its scans), without reading them: a caller's estimate, checked when the
+/// points are read.
+///
+/// # Errors
+///
+/// [`ReadError`] of the reader, for the header.
+pub fn declared_points(path: &Path) -> Result<u64, ReadError> {
+    if !is_e57(path) {
+        return super::ply::vertex_count(path);
+    }
+    let invalid = |e: e57::Error| ReadError::new(path, ReadErrorKind::Invalid(format!("E57: {e}")));
+    let reader = e57::E57Reader::new(std::io::BufReader::new(open_file(path)?)).map_err(invalid)?;
+    Ok(reader
+        .pointclouds()
+        .iter()
+        .fold(0u64, |n, pc| n.saturating_add(pc.records)))
+}
+
+/// Whether `path` names an E57 file (by its extension, in any case).
+fn is_e57(path: &Path) -> bool {
+    path.extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("e57"))
 }
 
 /// Reads the points of a cloud by its extension: `.e57` through [`read`], anything else as PLY
@@ -69,10 +151,7 @@ fn read_from<T: std::io::Read + std::io::Seek>(
 ///
 /// [`ReadError`] of the reader.
 pub fn read_cloud(path: &Path) -> Result<PlyRead, ReadError> {
-    let is_e57 = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("e57"));
-    if is_e57 {
+    if is_e57(path) {
         read(path)
     } else {
         super::ply::read_points(path)

@@ -10,6 +10,7 @@ pub mod network;
 pub mod nominal;
 pub mod pipe;
 pub mod scale;
+pub mod scan;
 pub mod site;
 pub mod targets;
 mod zorder;

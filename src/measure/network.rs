@@ -126,6 +126,9 @@ pub struct PipeSegment {
     pub rmse_m: f64,
     /// Inliers.
     pub inliers: usize,
+    /// Inliers among the points searched: `inliers` unless the scan was decimated for the
+    /// search and the segment re-fitted on every point ([`super::scan`]).
+    pub searched_inliers: usize,
     /// Arc of the circumference the inliers fill (degrees).
     pub coverage_deg: f64,
     /// Median angle between the inliers' normals and the radial direction (degrees).
@@ -625,6 +628,7 @@ fn accept(
             radius_std_m: p.radius_std,
             rmse_m: p.rmse,
             inliers: p.indices.len(),
+            searched_inliers: p.indices.len(),
             coverage_deg: p.coverage.to_degrees(),
             normal_deviation_deg: p.normal_deviation.to_degrees(),
             normal_turn: p.normal_turn,
@@ -1329,6 +1333,7 @@ mod tests {
             radius_std_m: 0.0,
             rmse_m: 0.0,
             inliers: 0,
+            searched_inliers: 0,
             coverage_deg: 0.0,
             normal_deviation_deg: 0.0,
             normal_turn: 1.0,

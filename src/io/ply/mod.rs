@@ -157,15 +157,21 @@ fn colour_from(value: f64, t: Scalar) -> u8 {
     }
 }
 
-/// The cloud being filled, one vertex at a time.
-struct CloudBuilder {
+/// Where a streamed read hands its points: `(chunk length, consumer)`.
+type Sink<'a> = (usize, &'a mut dyn FnMut(&[Point3<f64>]));
+
+/// The cloud being filled, one vertex at a time; with a sink, handed on in chunks instead of
+/// kept.
+struct CloudBuilder<'a> {
     layout: VertexLayout,
     cloud: PointCloud,
     skipped: usize,
+    sink: Option<Sink<'a>>,
 }
 
-impl CloudBuilder {
-    fn new(layout: VertexLayout, capacity: usize) -> Self {
+impl<'a> CloudBuilder<'a> {
+    fn new(layout: VertexLayout, capacity: usize, sink: Option<Sink<'a>>) -> Self {
+        let capacity = sink.as_ref().map_or(capacity, |(n, _)| capacity.min(*n));
         let cloud = PointCloud {
             points: Vec::with_capacity(capacity),
             normals: layout.normals.map(|_| Vec::with_capacity(capacity)),
@@ -176,6 +182,17 @@ impl CloudBuilder {
             layout,
             cloud,
             skipped: 0,
+            sink,
+        }
+    }
+
+    /// Hands the points gathered so far to the sink (if any) and forgets them.
+    fn flush(&mut self) {
+        if let Some((_, f)) = self.sink.as_mut() {
+            if !self.cloud.points.is_empty() {
+                f(&self.cloud.points);
+            }
+            self.cloud.points.clear();
         }
     }
 
@@ -188,6 +205,12 @@ impl CloudBuilder {
             return;
         }
         self.cloud.points.push(Point3::new(x, y, z));
+        if let Some((n, _)) = self.sink.as_ref() {
+            if self.cloud.points.len() >= *n {
+                self.flush();
+            }
+            return;
+        }
         if let (Some(n), Some(idx)) = (self.cloud.normals.as_mut(), l.normals) {
             n.push(Vector3::from(idx.map(|k| values[k])));
         }
@@ -228,7 +251,64 @@ pub fn read_points(path: &Path) -> Result<PlyRead, ReadError> {
 ///
 /// As [`read`].
 pub fn parse(path: &Path, bytes: &[u8]) -> Result<PlyRead, ReadError> {
-    read_from(path, bytes, bytes.len() as u64, Attributes::All)
+    read_from(path, bytes, bytes.len() as u64, Attributes::All, None)
+}
+
+/// What a streamed read saw: every vertex of the file, and those left out.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct StreamSummary {
+    /// Vertices (points) in the file.
+    pub vertices_in_file: usize,
+    /// Vertices left out because a coordinate was NaN or infinite (or, in E57, invalid).
+    pub skipped_non_finite: usize,
+}
+
+/// The number of vertices a PLY file's header declares (the body is not read: a caller's
+/// estimate, checked when the body is read).
+///
+/// # Errors
+///
+/// As [`read`], for the header.
+pub fn vertex_count(path: &Path) -> Result<u64, ReadError> {
+    let mut reader = BufReader::new(open_file(path)?);
+    let header = read_header(path, &mut reader)?;
+    Ok(header
+        .elements
+        .iter()
+        .find(|e| e.name == "vertex")
+        .map_or(0, |e| e.count))
+}
+
+/// Reads the coordinates of a PLY point cloud in chunks of at most `chunk` finite points,
+/// each handed to `f` in file order and then forgotten: a scan of any size in bounded memory.
+/// The header and the declared counts are checked against the file's length first, as by
+/// [`read`]; an error in the body comes after some chunks were handed on, so the caller must
+/// discard what it built from them.
+///
+/// # Errors
+///
+/// As [`read`].
+pub fn stream_points(
+    path: &Path,
+    chunk: usize,
+    f: &mut dyn FnMut(&[Point3<f64>]),
+) -> Result<StreamSummary, ReadError> {
+    let file = open_file(path)?;
+    let len = file
+        .metadata()
+        .map_err(|e| ReadError::new(path, ReadErrorKind::Io(e)))?
+        .len();
+    let read = read_from(
+        path,
+        BufReader::with_capacity(1 << 20, file),
+        len,
+        Attributes::None,
+        Some((chunk.max(1), f)),
+    )?;
+    Ok(StreamSummary {
+        vertices_in_file: read.vertices_in_file,
+        skipped_non_finite: read.skipped_non_finite,
+    })
 }
 
 /// Which per-point attributes to keep.
@@ -251,6 +331,7 @@ fn read_file(path: &Path, attributes: Attributes) -> Result<PlyRead, ReadError> 
         BufReader::with_capacity(1 << 20, file),
         len,
         attributes,
+        None,
     )
 }
 
@@ -260,6 +341,7 @@ fn read_from<R: BufRead>(
     mut reader: R,
     len: u64,
     attributes: Attributes,
+    sink: Option<Sink<'_>>,
 ) -> Result<PlyRead, ReadError> {
     let header = read_header(path, &mut reader)?;
     let Some(vertex) = header.elements.iter().find(|e| e.name == "vertex") else {
@@ -276,7 +358,7 @@ fn read_from<R: BufRead>(
     // Every vertex takes at least `min_bytes` of the body, so this never exceeds what the file
     // holds (checked just above).
     let capacity = usize::try_from(vertex.count).unwrap_or(usize::MAX);
-    let mut builder = CloudBuilder::new(layout, capacity);
+    let mut builder = CloudBuilder::new(layout, capacity, sink);
     let mut body = Body {
         reader,
         pos: header.bytes,
@@ -297,6 +379,7 @@ fn read_from<R: BufRead>(
         }
     }
     body.expect_end(path, header.format)?;
+    builder.flush();
     Ok(PlyRead {
         cloud: builder.cloud,
         vertices_in_file: capacity,
@@ -406,7 +489,7 @@ impl<R: BufRead> Body<R> {
         path: &Path,
         element: &Element,
         big: bool,
-        mut vertex: Option<&mut CloudBuilder>,
+        mut vertex: Option<&mut CloudBuilder<'_>>,
     ) -> Result<(), ReadError> {
         let mut values = vec![f64::NAN; element.properties.len()];
         if let Some(size) = element.fixed_size() {
@@ -523,7 +606,7 @@ impl<R: BufRead> Body<R> {
         &mut self,
         path: &Path,
         element: &Element,
-        mut vertex: Option<&mut CloudBuilder>,
+        mut vertex: Option<&mut CloudBuilder<'_>>,
     ) -> Result<(), ReadError> {
         let mut values = vec![f64::NAN; element.properties.len()];
         let mut line = Vec::new();
