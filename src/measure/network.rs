@@ -1056,11 +1056,22 @@ fn straight_span(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> Option<(f64, f64
         a[5] += uy * e;
         a[6] += e * e;
     }
+    // A slab with less than half the typical slab's inliers cannot tell: where an elbow
+    // begins, the band keeps only the few of its points that still lie near the straight
+    // surface (its sides near the neutral plane), and they look straight. The more points a
+    // scan has, the more such slabs pass a fixed count.
+    let mut counts: Vec<f64> = acc.iter().map(|a| a[0]).filter(|&n| n > 0.0).collect();
+    let typical = if counts.is_empty() {
+        0.0
+    } else {
+        let mid = counts.len() / 2;
+        *counts.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
     // Some(bent) for a slab with enough points to tell.
     let bent: Vec<Option<bool>> = acc
         .iter()
         .map(|a| {
-            if a[0] < 12.0 {
+            if a[0] < 12.0f64.max(0.5 * typical) {
                 return None;
             }
             let det = a[1] * a[3] - a[2] * a[2];
