@@ -8,6 +8,7 @@ pub mod eccentricity;
 pub mod epipolar;
 pub mod pose;
 pub mod quan;
+pub mod solid;
 pub mod triangulation;
 
 pub use conic::Ellipse;

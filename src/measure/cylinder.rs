@@ -23,6 +23,7 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cloud::{BOX_RUN, Cloud, plane_of};
+use crate::robust::upper_median;
 
 /// A cylinder: the axis through `point` along unit `direction`, and the radius.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -789,9 +790,7 @@ pub fn refit_among(
             .iter()
             .map(|&k| cyl.residual(&cloud.point_at(k)).abs())
             .collect();
-        let mid = abs.len() / 2;
-        let band = (3.0 * 1.4826 * *abs.select_nth_unstable_by(mid, f64::total_cmp).1)
-            .max(threshold.min(1e-3));
+        let band = (3.0 * 1.4826 * upper_median(&mut abs)).max(threshold.min(1e-3));
         let next: Vec<usize> = pool
             .iter()
             .copied()

@@ -33,6 +33,7 @@ use super::cylinder::{
     Cylinder, CylinderConfig, CylinderError, filled_arc, fit_cylinder_among, refit_among,
 };
 use super::nominal::{NominalSize, PipeMaterial, nominal_size};
+use crate::robust::upper_median;
 
 /// How to extract the network.
 #[derive(Clone, Debug, PartialEq)]
@@ -837,18 +838,12 @@ pub struct Clearance {
 /// (flat ends at its endpoints), distances from parry3d's GJK distance query.
 #[must_use]
 pub fn clearances(segments: &[PipeSegment]) -> Vec<Clearance> {
-    use parry3d_f64::math::{Pose, Rotation, Vector};
-    use parry3d_f64::shape::Cylinder as Solid;
-    let shape = |s: &PipeSegment| {
-        let (a, d, l) = s.axis();
-        let mid = a + d * (0.5 * l);
-        let rotation = Rotation::from_rotation_arc(Vector::Y, Vector::new(d.x, d.y, d.z));
-        (
-            Pose::from_parts(Vector::new(mid.x, mid.y, mid.z), rotation),
-            Solid::new(0.5 * l, s.radius_m),
-        )
-    };
-    let shapes: Vec<_> = segments.iter().map(shape).collect();
+    let shapes: Vec<_> = segments
+        .iter()
+        .map(|s| {
+            crate::geometry::solid::cylinder_between(&s.start.into(), &s.end.into(), s.radius_m)
+        })
+        .collect();
     let pairs: Vec<(usize, usize)> = (0..segments.len())
         .flat_map(|i| (i + 1..segments.len()).map(move |j| (i, j)))
         .collect();
@@ -917,8 +912,7 @@ fn normal_turn(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> Option<f64> {
     if slopes.len() < 2 {
         return None;
     }
-    let mid = slopes.len() / 2;
-    Some(*slopes.select_nth_unstable_by(mid, f64::total_cmp).1)
+    Some(upper_median(&mut slopes))
 }
 
 /// The points' systematic departure from the circle (m): per 10° bin of their azimuths about
@@ -945,8 +939,7 @@ fn shape_departure(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> f64 {
     if abs.is_empty() {
         return f64::INFINITY;
     }
-    let mid = abs.len() / 2;
-    let sigma = 1.4826 * *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let sigma = 1.4826 * upper_median(&mut abs);
     let (mut m2, mut noise, mut bins) = (0.0, 0.0, 0usize);
     for &(n, sum) in sums.iter().filter(|s| s.0 >= 5) {
         let mean = sum / n as f64;
@@ -973,8 +966,7 @@ fn normal_deviation(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> f64 {
     if angles.is_empty() {
         return std::f64::consts::FRAC_PI_2;
     }
-    let mid = angles.len() / 2;
-    *angles.select_nth_unstable_by(mid, f64::total_cmp).1
+    upper_median(&mut angles)
 }
 
 /// [`refit_among`] and then again on the straight part of the inliers only
@@ -1064,8 +1056,7 @@ fn straight_span(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> Option<(f64, f64
     let typical = if counts.is_empty() {
         0.0
     } else {
-        let mid = counts.len() / 2;
-        *counts.select_nth_unstable_by(mid, f64::total_cmp).1
+        upper_median(&mut counts)
     };
     // Some(bent) for a slab with enough points to tell.
     let bent: Vec<Option<bool>> = acc
@@ -1195,8 +1186,7 @@ fn rim_start(pts: &[EndPoint]) -> Option<f64> {
     // The rim's radius: the median offset; its points those within 3 mm of it (a valve's
     // body behind the flange lies further in).
     let mut e: Vec<f64> = rim.iter().map(|p| p.1).collect();
-    let mid = e.len() / 2;
-    let radius = *e.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let radius = upper_median(&mut e);
     let rim: Vec<&&EndPoint> = rim
         .iter()
         .filter(|p| (p.1 - radius).abs() <= 0.003)
@@ -1290,8 +1280,7 @@ fn elbow_tangent(pts: &[EndPoint], tail: f64) -> Option<f64> {
     if straight.len() < 20 || surface.len() < 40 {
         return None;
     }
-    let mid = straight.len() / 2;
-    let sigma2 = *straight.select_nth_unstable_by(mid, f64::total_cmp).1 / 0.455;
+    let sigma2 = upper_median(&mut straight) / 0.455;
     let rss0: f64 = surface.iter().map(|p| p.1 * p.1).sum();
     let mut best = (rss0, None);
     let steps = ((tail + 0.05) / 0.002) as usize;

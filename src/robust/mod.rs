@@ -190,6 +190,17 @@ pub fn robust_sigma(median_sq: f64, n: usize, p: usize) -> f64 {
     MAD_TO_SIGMA * (1.0 + small) * median_sq.max(0.0).sqrt()
 }
 
+/// The (⌊n/2⌋+1)-th smallest value: the median of an odd count, the upper of the two middle
+/// values of an even one; `+∞` when there are none. Reorders `values`.
+#[must_use]
+pub fn upper_median(values: &mut [f64]) -> f64 {
+    if values.is_empty() {
+        return f64::INFINITY;
+    }
+    let k = values.len() / 2;
+    *values.select_nth_unstable_by(k, f64::total_cmp).1
+}
+
 /// The ⌈n/2⌉-th smallest value (the median rule of Rousseeuw & Leroy).
 #[must_use]
 pub fn lower_median(values: &mut [f64]) -> f64 {
@@ -295,6 +306,16 @@ mod tests {
             let (x, y) = self.0[i];
             (y - m * x - c).powi(2)
         }
+    }
+
+    #[test]
+    fn the_medians_pick_the_middle_order_statistics() {
+        // Odd: both the middle value; even: the lower and the upper of the two middle ones.
+        assert_eq!(upper_median(&mut [5.0, 1.0, 3.0]), 3.0);
+        assert_eq!(lower_median(&mut [5.0, 1.0, 3.0]), 3.0);
+        assert_eq!(upper_median(&mut [4.0, 1.0, 3.0, 2.0]), 3.0);
+        assert_eq!(lower_median(&mut [4.0, 1.0, 3.0, 2.0]), 2.0);
+        assert_eq!(upper_median(&mut []), f64::INFINITY);
     }
 
     #[test]

@@ -20,15 +20,16 @@
 //! algorithms it judges.
 
 use nalgebra::{Point3, Vector3};
-use parry3d_f64::math::{Pose, Rotation, Vector};
+use parry3d_f64::math::{Pose, Vector};
 use parry3d_f64::query::Ray;
-use parry3d_f64::shape::{CompositeShapeRef, Compound, Cuboid, Cylinder, SharedShape};
+use parry3d_f64::shape::{CompositeShapeRef, Compound, Cuboid, SharedShape};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
 use super::sfm::gaussian;
+use crate::geometry::solid;
 use crate::io::ply::PointCloud;
 
 /// ASME B36.10M / B36.19M nominal pipe sizes used by the simulator: (NPS, DN, outside
@@ -183,13 +184,8 @@ fn v(p: [f64; 3]) -> Vector {
 
 /// The pose of a parry cylinder (axis along local y) from `a` to `b`.
 fn cylinder_between(a: [f64; 3], b: [f64; 3], radius: f64) -> (Pose, SharedShape) {
-    let (a, b) = (v(a), v(b));
-    let axis = b - a;
-    let rotation = Rotation::from_rotation_arc(Vector::Y, axis.normalize());
-    (
-        Pose::from_parts((a + b) * 0.5, rotation),
-        SharedShape::new(Cylinder::new(axis.length() * 0.5, radius)),
-    )
+    let (pose, solid) = solid::cylinder_between(&a.into(), &b.into(), radius);
+    (pose, SharedShape::new(solid))
 }
 
 /// An axis-aligned box from its corners.
