@@ -1,7 +1,8 @@
 //! The PLY reader on arbitrary bytes, seeded with binary files, both endians
-//! (`corpus/ply_binary`).
+//! (`corpus/ply_binary`), whole and streamed ([`differential`]).
 #![no_main]
 
-libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    let _ = pipemeasure::io::ply::parse(std::path::Path::new("fuzz.ply"), data);
-});
+#[path = "ply_differential.rs"]
+mod differential;
+
+libfuzzer_sys::fuzz_target!(|data: &[u8]| differential::check(data));

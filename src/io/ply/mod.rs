@@ -279,6 +279,30 @@ pub fn vertex_count(path: &Path) -> Result<u64, ReadError> {
         .map_or(0, |e| e.count))
 }
 
+/// [`stream_points`] on a PLY file held in memory; `path` only names it in errors.
+///
+/// # Errors
+///
+/// As [`read`].
+pub fn parse_streamed(
+    path: &Path,
+    bytes: &[u8],
+    chunk: usize,
+    f: &mut dyn FnMut(&[Point3<f64>]),
+) -> Result<StreamSummary, ReadError> {
+    let read = read_from(
+        path,
+        bytes,
+        bytes.len() as u64,
+        Attributes::None,
+        Some((chunk.max(1), f)),
+    )?;
+    Ok(StreamSummary {
+        vertices_in_file: read.vertices_in_file,
+        skipped_non_finite: read.skipped_non_finite,
+    })
+}
+
 /// Reads the coordinates of a PLY point cloud in chunks of at most `chunk` finite points,
 /// each handed to `f` in file order and then forgotten: a scan of any size in bounded memory.
 /// The header and the declared counts are checked against the file's length first, as by

@@ -334,3 +334,49 @@ fn ascii_values_must_fit_their_type() {
         "{e}"
     );
 }
+
+#[test]
+fn streamed_in_chunks_gives_the_points_in_order_and_the_same_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    for big in [false, true] {
+        // 10 points (k, −k, 0.5), in chunks of 3: 3 + 3 + 3 + 1.
+        let p = write(dir.path(), "s.ply", &binary(big, 10, 0));
+        let mut chunks: Vec<Vec<Point3<f64>>> = Vec::new();
+        let summary = stream_points(&p, 3, &mut |c| chunks.push(c.to_vec())).unwrap();
+        assert_eq!(summary.vertices_in_file, 10);
+        assert_eq!(summary.skipped_non_finite, 0);
+        assert_eq!(
+            chunks.iter().map(Vec::len).collect::<Vec<_>>(),
+            vec![3, 3, 3, 1]
+        );
+        let expected: Vec<Point3<f64>> = (0..10)
+            .map(|k| Point3::new(k as f64, -(k as f64), 0.5))
+            .collect();
+        assert_eq!(chunks.concat(), expected);
+        // A truncated body: the same error as reading it whole, naming file and byte.
+        let p = write(dir.path(), "t.ply", &binary(big, 10, 5));
+        let whole = read_points(&p).unwrap_err().to_string();
+        let streamed = stream_points(&p, 3, &mut |_| {}).unwrap_err().to_string();
+        assert_eq!(whole, streamed);
+        assert!(streamed.contains("t.ply"), "{streamed}");
+    }
+    // The ascii file with a NaN point: skipped and counted, as by `read`.
+    let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\nnan 0 0\n4 5 6\n";
+    let mut points = Vec::new();
+    let summary = parse_streamed(Path::new("a.ply"), text.as_bytes(), 1, &mut |c| {
+        points.extend_from_slice(c)
+    })
+    .unwrap();
+    assert_eq!(
+        (summary.vertices_in_file, summary.skipped_non_finite),
+        (3, 1)
+    );
+    assert_eq!(
+        points,
+        vec![Point3::new(1.0, 2.0, 3.0), Point3::new(4.0, 5.0, 6.0)]
+    );
+    let e = vertex_count(Path::new("missing.ply"))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("missing.ply"), "{e}");
+}
