@@ -238,3 +238,47 @@ fn a_lying_vertex_count_is_a_clear_error() {
     assert_eq!(code, 1, "{stderr}");
     assert!(stderr.contains("lying.ply"), "{stderr}");
 }
+
+/// A scanner's E57 export of the room (`simulate plant --e57`: one scan per station, points
+/// in the station's own frame turned 25° and 95° about the vertical, each scan's pose taking
+/// them to the room): read through the poses, the same points as the PLY to 1 nm and the same
+/// network.
+#[test]
+fn an_e57_with_a_scan_per_station_and_their_poses_gives_the_same_network() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (code, _, stderr) = pipemeasure(
+        tmp.path(),
+        &[
+            "simulate", "plant", "--out", "room", "--seed", "2", "--e57", "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let ply = pipemeasure::io::ply::read_points(&tmp.path().join("room/tls_scan.ply")).unwrap();
+    let e57 = pipemeasure::io::e57::read(&tmp.path().join("room/tls_scan.e57")).unwrap();
+    assert_eq!(e57.cloud.len(), ply.cloud.len());
+    for (a, b) in e57.cloud.points.iter().zip(&ply.cloud.points) {
+        assert!((a - b).norm() < 1e-9, "{a} against {b}");
+    }
+    let network = |file: &str| -> Value {
+        let (code, stdout, stderr) =
+            pipemeasure(tmp.path(), &["pipes", file, "--json", "--quiet"], &[]);
+        assert_eq!(code, 0, "{stderr}");
+        serde_json::from_str(&stdout).unwrap()
+    };
+    let (from_e57, from_ply) = (network("room/tls_scan.e57"), network("room/tls_scan.ply"));
+    let (a, b) = (
+        from_e57["segments"].as_array().unwrap(),
+        from_ply["segments"].as_array().unwrap(),
+    );
+    assert_eq!(a.len(), 7);
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(b) {
+        let dr = x["radius_m"].as_f64().unwrap() - y["radius_m"].as_f64().unwrap();
+        assert!(dr.abs() < 1e-9, "{x}\n{y}");
+        for end in ["start", "end"] {
+            assert!((v(&x[end]) - v(&y[end])).norm() < 1e-6, "{x}\n{y}");
+        }
+        assert_eq!(x["inliers"], y["inliers"]);
+    }
+}

@@ -34,7 +34,7 @@ pub enum Command {
 /// `simulate plant`.
 #[derive(Debug, clap::Args)]
 pub struct PlantArgs {
-    /// Output folder (tls_scan.ply, truth.json).
+    /// Output folder (tls_scan.ply, truth.json; tls_scan.e57 with --e57).
     #[arg(long)]
     out: PathBuf,
     /// Seed of the room and of the scan's noise.
@@ -49,6 +49,10 @@ pub struct PlantArgs {
     /// Range noise σ (mm).
     #[arg(long, default_value_t = 1.5, value_parser = values::non_negative)]
     range_noise_mm: f64,
+    /// Also write the scan as E57 (`tls_scan.e57`), one scan per station in the station's own
+    /// frame with its pose, as a scanner's software exports it.
+    #[arg(long)]
+    e57: bool,
     /// Replace an existing simulation in --out.
     #[arg(long)]
     force: bool,
@@ -354,7 +358,7 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             if !globals.quiet {
                 eprintln!("scanning the plant room from {} stations", args.stations);
             }
-            let truth = simulate_plant(args.seed, &config, &args.out)
+            let truth = simulate_plant(args.seed, &config, args.e57, &args.out)
                 .with_context(|| format!("simulating a plant room into {}", args.out.display()))?;
             let [l, w, h] = truth.room;
             outln!(

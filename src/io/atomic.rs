@@ -133,6 +133,28 @@ impl StagedFile {
         Ok(staged)
     }
 
+    /// Writes the staged file with `write`, given the temporary's path: for writers that open
+    /// their own file (the E57 writer reads back and seeks as it writes). `write` must leave the
+    /// file complete and closed.
+    ///
+    /// # Errors
+    ///
+    /// [`WriteError`] naming the destination; nothing is left behind.
+    pub fn write_at<F>(dest: &Path, write: F) -> Result<Self, WriteError>
+    where
+        F: FnOnce(&Path) -> std::io::Result<()>,
+    {
+        remove_stale_temporaries(dest);
+        let staged = StagedFile {
+            dest: dest.to_path_buf(),
+            tmp: temporary_path(dest),
+            committed: false,
+        };
+        let result = write(&staged.tmp).and_then(|()| File::open(&staged.tmp)?.sync_all());
+        result.map_err(|e| WriteError::new(dest, e))?;
+        Ok(staged)
+    }
+
     /// The destination.
     #[must_use]
     pub fn destination(&self) -> &Path {

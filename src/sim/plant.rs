@@ -577,6 +577,18 @@ fn cast(room: &PlantRoom, origin: &Point3<f64>, dir: &Vector3<f64>) -> Option<(f
 /// count of mixed pixels.
 #[must_use]
 pub fn scan(room: &PlantRoom, config: &PlantScanConfig, seed: u64) -> (PointCloud, usize) {
+    let (cloud, mixed, _) = scan_by_station(room, config, seed);
+    (cloud, mixed)
+}
+
+/// [`scan`], with how many of the points each station gave (the points are in station order).
+#[must_use]
+pub fn scan_by_station(
+    room: &PlantRoom,
+    config: &PlantScanConfig,
+    seed: u64,
+) -> (PointCloud, usize, Vec<usize>) {
+    let mut per_station = Vec::new();
     let (el_lo, el_hi) = config.elevation_range_rad;
     let n_az = (std::f64::consts::TAU / config.step_rad).ceil() as usize;
     let n_el = ((el_hi - el_lo) / config.step_rad).ceil() as usize;
@@ -620,7 +632,9 @@ pub fn scan(room: &PlantRoom, config: &PlantScanConfig, seed: u64) -> (PointClou
                     .collect()
             })
             .collect();
+        let before = rows.len();
         rows.extend(part.into_iter().flatten());
+        per_station.push(rows.len() - before);
     }
     let mixed = rows.iter().filter(|r| r.2).count();
     let cloud = PointCloud {
@@ -628,12 +642,74 @@ pub fn scan(room: &PlantRoom, config: &PlantScanConfig, seed: u64) -> (PointClou
         intensity: Some(rows.iter().map(|r| r.1).collect()),
         ..Default::default()
     };
-    (cloud, mixed)
+    (cloud, mixed, per_station)
+}
+
+/// The heading of station `s`'s own frame about the vertical (rad): a scanner is set up
+/// turned any way, and its E57 scan carries that rotation in its pose.
+fn station_heading(s: usize) -> f64 {
+    (25.0 + 70.0 * s as f64).to_radians()
+}
+
+/// Writes the scan as E57 the way a scanner's software exports it: one scan per station, its
+/// points (Cartesian, double) in the station's own frame (turned by [`station_heading`]
+/// about the vertical, origin at the scanner), its pose (rotation and the station's position)
+/// taking them to the room's frame.
+fn write_e57(
+    path: &std::path::Path,
+    cloud: &PointCloud,
+    stations: &[Point3<f64>],
+    per_station: &[usize],
+) -> std::io::Result<()> {
+    use e57::{E57Writer, Quaternion, Record, RecordValue, Transform, Translation};
+    let io = |e: e57::Error| std::io::Error::other(e.to_string());
+    let mut w = E57Writer::from_file(path, "pipemeasure-simulated-plant-room").map_err(io)?;
+    let prototype = vec![
+        Record::CARTESIAN_X_F64,
+        Record::CARTESIAN_Y_F64,
+        Record::CARTESIAN_Z_F64,
+    ];
+    let mut first = 0;
+    for (s, (station, &n)) in stations.iter().zip(per_station).enumerate() {
+        let heading = station_heading(s);
+        let (sin, cos) = heading.sin_cos();
+        let (half_sin, half_cos) = (0.5 * heading).sin_cos();
+        let mut pc = w
+            .add_pointcloud(&format!("station-{}", s + 1), prototype.clone())
+            .map_err(io)?;
+        pc.set_transform(Some(Transform {
+            rotation: Quaternion {
+                w: half_cos,
+                x: 0.0,
+                y: 0.0,
+                z: half_sin,
+            },
+            translation: Translation {
+                x: station.x,
+                y: station.y,
+                z: station.z,
+            },
+        }));
+        for p in &cloud.points[first..first + n] {
+            // Room → station: subtract the position, turn by −heading about z.
+            let d = p - station;
+            pc.add_point(vec![
+                RecordValue::Double(cos * d.x + sin * d.y),
+                RecordValue::Double(-sin * d.x + cos * d.y),
+                RecordValue::Double(d.z),
+            ])
+            .map_err(io)?;
+        }
+        pc.finalize().map_err(io)?;
+        first += n;
+    }
+    w.finalize().map_err(io)
 }
 
 /// `pipemeasure simulate plant`: draws the room of `seed`, scans it and writes
-/// `OUT/tls_scan.ply` (x, y, z, intensity) and `OUT/truth.json` ([`PlantTruth`]), both staged
-/// and moved into place together.
+/// `OUT/tls_scan.ply` (x, y, z, intensity), with `e57` also `OUT/tls_scan.e57` (one scan per
+/// station, with its pose), and `OUT/truth.json` ([`PlantTruth`]), all staged and moved into
+/// place together.
 ///
 /// # Errors
 ///
@@ -641,15 +717,14 @@ pub fn scan(room: &PlantRoom, config: &PlantScanConfig, seed: u64) -> (PointClou
 pub fn simulate_plant(
     seed: u64,
     config: &PlantScanConfig,
+    e57: bool,
     out: &std::path::Path,
 ) -> Result<PlantTruth, crate::io::error::WriteError> {
     std::fs::create_dir_all(out).map_err(|e| crate::io::error::WriteError::new(out, e))?;
     let room = plant_room(seed);
-    let (cloud, mixed_pixels) = scan(&room, config, seed);
-    let at: Vec<[f64; 3]> = stations(&room, config.stations)
-        .iter()
-        .map(|s| [s.x, s.y, s.z])
-        .collect();
+    let (cloud, mixed_pixels, per_station) = scan_by_station(&room, config, seed);
+    let placed = stations(&room, config.stations);
+    let at: Vec<[f64; 3]> = placed.iter().map(|s| [s.x, s.y, s.z]).collect();
     let mut truth = room.truth;
     truth.scan = Some(ScanTruth {
         stations: at,
@@ -659,6 +734,14 @@ pub fn simulate_plant(
         mixed_pixels,
     });
     let ply = crate::io::ply::stage_binary(&out.join("tls_scan.ply"), &cloud)?;
+    let e57 = if e57 {
+        Some(crate::io::atomic::StagedFile::write_at(
+            &out.join("tls_scan.e57"),
+            |path| write_e57(path, &cloud, &placed, &per_station),
+        )?)
+    } else {
+        None
+    };
     let json = serde_json::to_vec_pretty(&truth).map_err(|e| {
         crate::io::error::WriteError::new(out.join("truth.json"), std::io::Error::other(e))
     })?;
@@ -666,6 +749,9 @@ pub fn simulate_plant(
         std::io::Write::write_all(w, &json)
     })?;
     ply.commit()?;
+    if let Some(e57) = e57 {
+        e57.commit()?;
+    }
     truth_file.commit()?;
     Ok(truth)
 }
