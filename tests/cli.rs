@@ -778,3 +778,49 @@ fn calibrate_reports_the_network_and_check_points() {
         assert!(stderr.contains(expect), "{file}: {stderr}");
     }
 }
+
+/// `fit-cylinder --near --within` streams the file and keeps only the region's points: on the
+/// real mug scan, a 0.2 m region about the mug gives the mug (PCL's tutorial: 38.8 mm, its axis
+/// along the table's normal ≈ (0, −0.84, −0.54)); a region with no point says so, naming the
+/// file, exit 1.
+#[test]
+fn fit_cylinder_in_a_region_of_a_real_scan() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mug = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/data/pcl_mug/table_scene_mug_stereo_textured.ply");
+    let mug = mug.to_str().unwrap();
+    let (code, stdout, stderr) = pipemeasure(
+        tmp.path(),
+        &[
+            "fit-cylinder",
+            mug,
+            "--radius-min",
+            "0",
+            "--radius-max",
+            "0.1",
+            "--near=0.05,0.1,0.79",
+            "--within",
+            "0.2",
+            "--json",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let fit: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    let r = fit["radius_m"].as_f64().unwrap();
+    assert!((r - 0.0388).abs() < 1e-3, "{r}");
+    let d = &fit["axis"]["direction"];
+    let along = (d[1].as_f64().unwrap() * -0.84 + d[2].as_f64().unwrap() * -0.54).abs();
+    assert!(along > 0.99, "{d}");
+    let (code, _, stderr) = pipemeasure(
+        tmp.path(),
+        &["fit-cylinder", mug, "--near", "10,10,10", "--within", "0.1"],
+        &[],
+    );
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stderr.contains("table_scene_mug_stereo_textured.ply")
+            && stderr.contains("0 finite points"),
+        "{stderr}"
+    );
+}

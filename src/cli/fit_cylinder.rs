@@ -5,7 +5,12 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use nalgebra::Vector3;
-use pipemeasure::measure::{Cloud, CylinderConfig, CylinderFit, Region, fit_cylinder};
+use pipemeasure::io::e57::stream_cloud;
+use pipemeasure::measure::network::Network;
+use pipemeasure::measure::scan::{ScanConfig, extract_network_from};
+use pipemeasure::measure::{
+    Cloud, CylinderConfig, CylinderFit, NetworkConfig, Region, extract_network, fit_cylinder,
+};
 use serde::Serialize;
 
 use super::{Globals, usage, values};
@@ -88,6 +93,41 @@ pub(super) fn checked(config: CylinderConfig) -> Result<CylinderConfig> {
     Ok(config)
 }
 
+/// The finite points of a PLY or E57 cloud within `region`, the file streamed so that only
+/// they are held; no finite point in the file is an error naming it.
+fn read_points_within(path: &Path, region: &Region) -> Result<Vec<Vector3<f64>>> {
+    let mut points = Vec::new();
+    let read = stream_cloud(path, 1 << 20, &mut |chunk| {
+        points.extend(
+            chunk
+                .iter()
+                .map(|p| p.coords)
+                .filter(|p| region.contains(p)),
+        );
+    })?;
+    if read.vertices_in_file == read.skipped_non_finite {
+        bail!(
+            "{}: no finite points ({} vertices, {} not finite)",
+            path.display(),
+            read.vertices_in_file,
+            read.skipped_non_finite
+        );
+    }
+    if points.is_empty() {
+        let c = region.centre;
+        bail!(
+            "{}: no point within {} m of ({}, {}, {}) ({} finite points in the file)",
+            path.display(),
+            region.radius,
+            c.x,
+            c.y,
+            c.z,
+            read.vertices_in_file - read.skipped_non_finite
+        );
+    }
+    Ok(points)
+}
+
 /// The finite points of a PLY or E57 cloud; none at all is an error naming the file.
 pub(super) fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>> {
     let read = pipemeasure::io::e57::read_cloud(path)?;
@@ -135,12 +175,35 @@ fn out_of(f: &CylinderFit) -> FitOut {
 pub fn run(args: &Args, _globals: Globals) -> Result<()> {
     let region = args.search.region()?;
     let config = args.search.config()?;
-    let mut points = read_points(&args.cloud)?;
-    if let Some(r) = &region {
-        points.retain(|p| r.contains(p));
+    if args.all && region.is_none() {
+        // A scan of any size: streamed, decimated beyond the budget, re-fitted on every point.
+        let scan = extract_network_from(
+            &args.cloud,
+            &ScanConfig {
+                network: NetworkConfig {
+                    cylinder: config,
+                    ..Default::default()
+                },
+                ..Default::default()
+            },
+            &mut |_, _| {},
+        )?;
+        return print_all(args, &scan.network);
     }
+    let points = match &region {
+        Some(r) => read_points_within(&args.cloud, r)?,
+        None => read_points(&args.cloud)?,
+    };
     if args.all {
-        return run_all(args, &points, config);
+        let network = extract_network(
+            &points,
+            &NetworkConfig {
+                cylinder: config,
+                ..Default::default()
+            },
+        )
+        .with_context(|| format!("{}", args.cloud.display()))?;
+        return print_all(args, &network);
     }
     let cloud = Cloud::new(&points).with_context(|| format!("{}", args.cloud.display()))?;
     let fits = vec![fit_cylinder(&cloud, &config)?];
@@ -179,15 +242,7 @@ struct SegmentOut<'a> {
 
 /// `--all`: the pipe network's engine ([`pipemeasure::measure::extract_network`]): every pipe
 /// once, as straight segments, walls and boxes refused (`pipemeasure pipes` says why).
-fn run_all(args: &Args, points: &[Vector3<f64>], config: CylinderConfig) -> Result<()> {
-    let network = pipemeasure::measure::extract_network(
-        points,
-        &pipemeasure::measure::NetworkConfig {
-            cylinder: config,
-            ..Default::default()
-        },
-    )
-    .with_context(|| format!("{}", args.cloud.display()))?;
+fn print_all(args: &Args, network: &Network) -> Result<()> {
     if network.segments.is_empty() {
         return Err(
             anyhow::Error::new(pipemeasure::measure::CylinderError::NotFound {
