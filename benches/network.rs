@@ -53,5 +53,54 @@ fn network(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, network);
+/// Point–surface distances of 1 M points to a pipe: the fit's residual (distance to the
+/// infinite axis less the radius, one cross product) against parry3d's `distance_to_point` on
+/// the finite solid cylinder with its pose (the README's "where parry3d did not replace
+/// hand-written geometry").
+fn residuals(c: &mut Criterion) {
+    use parry3d_f64::query::PointQuery;
+    use pipemeasure::measure::cylinder::Cylinder;
+    let (a, b, r) = (
+        Vector3::new(0.3, 0.2, 1.0),
+        Vector3::new(2.3, 1.2, 1.4),
+        0.057,
+    );
+    let d = (b - a).normalize();
+    let pipe = Cylinder {
+        point: a,
+        direction: d,
+        radius: r,
+    };
+    let (pose, solid) = pipemeasure::geometry::solid::cylinder_between(&a, &b, r);
+    let points: Vec<Vector3<f64>> = (0..1_000_000)
+        .map(|k| {
+            let t = (k as f64 * 0.618_034).fract();
+            let phi = k as f64 * 2.399_963;
+            let (e1, e2) = pipe.cross_section_basis();
+            a + (b - a) * t + (e1 * phi.cos() + e2 * phi.sin()) * (r + 1e-3 * (phi * 7.0).sin())
+        })
+        .collect();
+    let mut group = c.benchmark_group("residual");
+    group.sample_size(20);
+    group.bench_function("fit residual, 1 M points", |bench| {
+        bench.iter(|| points.iter().map(|p| pipe.residual(p).abs()).sum::<f64>())
+    });
+    group.bench_function("parry distance_to_point, 1 M points", |bench| {
+        bench.iter(|| {
+            points
+                .iter()
+                .map(|p| {
+                    solid.distance_to_point(
+                        &pose,
+                        parry3d_f64::math::Vector::new(p.x, p.y, p.z),
+                        false,
+                    )
+                })
+                .sum::<f64>()
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, network, residuals);
 criterion_main!(benches);
