@@ -93,27 +93,21 @@ pub(super) fn checked(config: CylinderConfig) -> Result<CylinderConfig> {
     Ok(config)
 }
 
-/// The finite points of a PLY or E57 cloud within `region`, the file streamed so that only
-/// they are held; no finite point in the file is an error naming it.
-fn read_points_within(path: &Path, region: &Region) -> Result<Vec<Vector3<f64>>> {
+/// The finite points of a PLY or E57 cloud, only those within `region` if given: the file is
+/// streamed, so only they are held. No finite point in the file, or none in the region, is an
+/// error naming the file.
+pub(super) fn read_points(path: &Path, region: Option<&Region>) -> Result<Vec<Vector3<f64>>> {
     let mut points = Vec::new();
     let read = stream_cloud(path, 1 << 20, &mut |chunk| {
         points.extend(
             chunk
                 .iter()
                 .map(|p| p.coords)
-                .filter(|p| region.contains(p)),
+                .filter(|p| region.is_none_or(|r| r.contains(p))),
         );
     })?;
-    if read.vertices_in_file == read.skipped_non_finite {
-        bail!(
-            "{}: no finite points ({} vertices, {} not finite)",
-            path.display(),
-            read.vertices_in_file,
-            read.skipped_non_finite
-        );
-    }
-    if points.is_empty() {
+    read.require_finite(path)?;
+    if let (Some(region), true) = (region, points.is_empty()) {
         let c = region.centre;
         bail!(
             "{}: no point within {} m of ({}, {}, {}) ({} finite points in the file)",
@@ -126,21 +120,6 @@ fn read_points_within(path: &Path, region: &Region) -> Result<Vec<Vector3<f64>>>
         );
     }
     Ok(points)
-}
-
-/// The finite points of a PLY or E57 cloud; none at all is an error naming the file.
-pub(super) fn read_points(path: &Path) -> Result<Vec<Vector3<f64>>> {
-    let read = pipemeasure::io::e57::read_cloud(path)?;
-    if read.cloud.points.is_empty() {
-        bail!(
-            "{}: no finite points ({} vertices, {} not finite)",
-            path.display(),
-            read.vertices_in_file,
-            read.skipped_non_finite
-        );
-    }
-    // In place: a point and its coordinate vector have the same layout, so no second copy.
-    Ok(read.cloud.points.into_iter().map(|p| p.coords).collect())
 }
 
 #[derive(Serialize)]
@@ -190,10 +169,7 @@ pub fn run(args: &Args, _globals: Globals) -> Result<()> {
         )?;
         return print_all(args, &scan.network);
     }
-    let points = match &region {
-        Some(r) => read_points_within(&args.cloud, r)?,
-        None => read_points(&args.cloud)?,
-    };
+    let points = read_points(&args.cloud, region.as_ref())?;
     if args.all {
         let network = extract_network(
             &points,

@@ -153,8 +153,12 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
         readout_time_s: args.readout_time.map(|ms| ms * 1e-3),
         global_shutter: args.rolling_shutter == RollingShutterMode::Off,
     };
-    let points = read_points(cloud)?;
-    let scan = args.tls_scan.as_deref().map(read_points).transpose()?;
+    let points = read_points(cloud, None)?;
+    let scan = args
+        .tls_scan
+        .as_deref()
+        .map(|p| read_points(p, None))
+        .transpose()?;
     let progress = bar(0, "detecting", globals.quiet);
     let m = measure_site(&request, &points, scan.as_deref(), &log, &|total| {
         progress.set_length(total as u64);

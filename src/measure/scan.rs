@@ -37,9 +37,9 @@ use super::cloud::Cloud;
 use super::cylinder::{Cylinder, refit_among};
 use super::network::{Network, NetworkConfig, NetworkError, PipeSegment, extract_network};
 use super::nominal::nominal_size;
+use crate::io::ReadError;
 use crate::io::e57::{declared_points, stream_cloud};
 use crate::io::ply::StreamSummary;
-use crate::io::{ReadError, ReadErrorKind};
 
 /// How a scan file is read and searched.
 #[derive(Clone, Debug, PartialEq)]
@@ -131,16 +131,7 @@ pub fn extract_network_from(
         chunk.iter().for_each(|p| kept.push(p.coords));
         progress(Pass::Search, kept.seen);
     })?;
-    if kept.points.is_empty() {
-        return Err(ReadError::new(
-            path,
-            ReadErrorKind::Invalid(format!(
-                "no finite points ({} vertices, {} not finite)",
-                read.vertices_in_file, read.skipped_non_finite
-            )),
-        )
-        .into());
-    }
+    read.require_finite(path)?;
     let mut network =
         extract_network(&kept.points, &config.network).map_err(|e| network_error(path, e))?;
     if kept.stride > 1 && !network.segments.is_empty() {

@@ -263,6 +263,34 @@ pub struct StreamSummary {
     pub skipped_non_finite: usize,
 }
 
+impl StreamSummary {
+    /// What a whole read saw.
+    fn of(read: &PlyRead) -> Self {
+        StreamSummary {
+            vertices_in_file: read.vertices_in_file,
+            skipped_non_finite: read.skipped_non_finite,
+        }
+    }
+
+    /// An error naming `path` when the file held no finite point.
+    ///
+    /// # Errors
+    ///
+    /// [`ReadError`] `no finite points (N vertices, M not finite)`.
+    pub fn require_finite(&self, path: &Path) -> Result<(), ReadError> {
+        if self.vertices_in_file > self.skipped_non_finite {
+            return Ok(());
+        }
+        Err(ReadError::new(
+            path,
+            ReadErrorKind::Invalid(format!(
+                "no finite points ({} vertices, {} not finite)",
+                self.vertices_in_file, self.skipped_non_finite
+            )),
+        ))
+    }
+}
+
 /// The number of vertices a PLY file's header declares (the body is not read: a caller's
 /// estimate, checked when the body is read).
 ///
@@ -290,17 +318,7 @@ pub fn parse_streamed(
     chunk: usize,
     f: &mut dyn FnMut(&[Point3<f64>]),
 ) -> Result<StreamSummary, ReadError> {
-    let read = read_from(
-        path,
-        bytes,
-        bytes.len() as u64,
-        Attributes::None,
-        Some((chunk.max(1), f)),
-    )?;
-    Ok(StreamSummary {
-        vertices_in_file: read.vertices_in_file,
-        skipped_non_finite: read.skipped_non_finite,
-    })
+    streamed(path, bytes, bytes.len() as u64, chunk, f)
 }
 
 /// Reads the coordinates of a PLY point cloud in chunks of at most `chunk` finite points,
@@ -317,22 +335,20 @@ pub fn stream_points(
     chunk: usize,
     f: &mut dyn FnMut(&[Point3<f64>]),
 ) -> Result<StreamSummary, ReadError> {
-    let file = open_file(path)?;
-    let len = file
-        .metadata()
-        .map_err(|e| ReadError::new(path, ReadErrorKind::Io(e)))?
-        .len();
-    let read = read_from(
-        path,
-        BufReader::with_capacity(1 << 20, file),
-        len,
-        Attributes::None,
-        Some((chunk.max(1), f)),
-    )?;
-    Ok(StreamSummary {
-        vertices_in_file: read.vertices_in_file,
-        skipped_non_finite: read.skipped_non_finite,
-    })
+    let (reader, len) = open_sized(path)?;
+    streamed(path, reader, len, chunk, f)
+}
+
+/// The coordinates of a PLY cloud of `len` bytes from `reader`, handed to `f` in chunks.
+fn streamed<R: BufRead>(
+    path: &Path,
+    reader: R,
+    len: u64,
+    chunk: usize,
+    f: &mut dyn FnMut(&[Point3<f64>]),
+) -> Result<StreamSummary, ReadError> {
+    let read = read_from(path, reader, len, Attributes::None, Some((chunk.max(1), f)))?;
+    Ok(StreamSummary::of(&read))
 }
 
 /// Which per-point attributes to keep.
@@ -345,18 +361,18 @@ enum Attributes {
 }
 
 fn read_file(path: &Path, attributes: Attributes) -> Result<PlyRead, ReadError> {
+    let (reader, len) = open_sized(path)?;
+    read_from(path, reader, len, attributes, None)
+}
+
+/// The file `path` opened for reading with a 1 MB buffer, and its length in bytes.
+fn open_sized(path: &Path) -> Result<(BufReader<std::fs::File>, u64), ReadError> {
     let file = open_file(path)?;
     let len = file
         .metadata()
         .map_err(|e| ReadError::new(path, ReadErrorKind::Io(e)))?
         .len();
-    read_from(
-        path,
-        BufReader::with_capacity(1 << 20, file),
-        len,
-        attributes,
-        None,
-    )
+    Ok((BufReader::with_capacity(1 << 20, file), len))
 }
 
 /// Reads a PLY cloud of `len` bytes from `reader`.
