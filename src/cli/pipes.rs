@@ -1,5 +1,6 @@
 //! `pipemeasure pipes CLOUD [--json] [--csv FILE] [--ply FILE] [--clearance]
-//! [--material M] [--radius-min M --radius-max M] [--seed N]`: the pipe network of a cloud,
+//! [--material M] [--radius-min M --radius-max M] [--seed N] [--device NAME]`: the pipe network
+//! of a cloud (with `--device`, a site's photogrammetric cloud scaled from its targets),
 //! every pipe once as straight segments, and what was refused.
 
 use std::io::Write as _;
@@ -10,11 +11,12 @@ use pipemeasure::io::atomic::StagedFile;
 use pipemeasure::io::ply::{PointCloud, stage_binary};
 use pipemeasure::measure::network::{Clearance, Network, clearances};
 use pipemeasure::measure::scan::{Pass, ScanConfig, extract_network_from};
+use pipemeasure::measure::site::{CloudSource, SiteRequest, site_network};
 use pipemeasure::measure::{CylinderConfig, NetworkConfig, PipeMaterial};
 use serde::Serialize;
 
-use super::fit_cylinder::checked;
-use super::progress::counter;
+use super::fit_cylinder::{checked, read_points};
+use super::progress::{bar, counter};
 use super::{Globals, NothingFound, values};
 
 /// Arguments of `pipes`.
@@ -52,6 +54,27 @@ pub struct Args {
     /// of the scan near it. Bounds the memory, whatever the scan's size.
     #[arg(long, default_value_t = ScanConfig::default().search_points, value_parser = at_least_1000)]
     search_points: usize,
+    /// A site's photogrammetric cloud, scaled from its targets as the main command does: the
+    /// device profile (a name in `calibrations/` or a path). The cloud is re-triangulated at
+    /// the poses re-adjusted to the profile, brought into the TLS frame by the targets, and
+    /// searched whole.
+    #[arg(long)]
+    device: Option<String>,
+    /// With --device: the site's SfM model; default `sparse` next to the cloud or up to two
+    /// folders above it.
+    #[arg(long, requires = "device")]
+    sfm: Option<PathBuf>,
+    /// With --device: the site's frames; default `images` or `frames` next to the cloud or
+    /// up to two folders above it.
+    #[arg(long, requires = "device")]
+    frames: Option<PathBuf>,
+    /// With --device: TLS target coordinates `id,x,y,z` (m); default `tls_targets.csv` next
+    /// to the cloud or up to two folders above it.
+    #[arg(long, requires = "device")]
+    tls_targets: Option<PathBuf>,
+    /// With --device: smallest semi-minor axis of a target to use (px, at least 1).
+    #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px, requires = "device")]
+    min_semi_minor: f64,
 }
 
 /// A point budget of at least a thousand points.
@@ -96,6 +119,9 @@ struct Output<'a> {
     points_in_file: usize,
     /// Every how many finite points one was searched (1: all).
     search_stride: usize,
+    /// How a site's cloud was scaled (with `--device`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    scale: Option<&'a ScaleOut>,
     #[serde(flatten)]
     network: &'a Network,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -237,8 +263,91 @@ fn coloured(points: &[nalgebra::Vector3<f64>], network: &Network) -> PointCloud 
     }
 }
 
-pub fn run(args: &Args, globals: Globals) -> Result<()> {
-    let config = config(args)?;
+/// The network of the cloud, the points searched, the points in the file and the stride: from
+/// the scan path, or (with `--device`) from the site's cloud scaled by its targets.
+struct Searched {
+    network: Network,
+    points: Vec<nalgebra::Vector3<f64>>,
+    points_in_file: usize,
+    stride: usize,
+    scale: Option<ScaleOut>,
+}
+
+/// How a site's cloud was scaled.
+#[derive(Serialize)]
+struct ScaleOut {
+    /// Metres per cloud unit, and its σ.
+    scale: f64,
+    scale_std: f64,
+    /// The coordinates are the TLS list's (true) or the cloud's own, in metres.
+    tls_frame: bool,
+    /// TLS targets used.
+    targets: Vec<String>,
+    /// The cloud re-triangulated at the re-adjusted poses (true) or used as fused.
+    retriangulated: bool,
+}
+
+fn site(args: &Args, device: &str, config: &ScanConfig, globals: Globals) -> Result<Searched> {
+    let log = |s: &str| {
+        if !globals.quiet {
+            eprintln!("{s}");
+        }
+    };
+    let request = SiteRequest {
+        cloud: args.cloud.clone(),
+        device: Some(device.to_string()),
+        sfm: args.sfm.clone(),
+        frames: args.frames.clone(),
+        tls_targets: args.tls_targets.clone(),
+        min_semi_minor_px: args.min_semi_minor,
+        cylinder: config.network.cylinder.clone(),
+        ..SiteRequest::default()
+    };
+    let points = read_points(&args.cloud, None)?;
+    let points_in_file = points.len();
+    let progress = bar(0, "detecting", globals.quiet);
+    let found = site_network(&request, &points, &config.network, &log, &|total| {
+        progress.set_length(total as u64);
+        progress.inc(1);
+    });
+    progress.finish_and_clear();
+    let found = found?;
+    let (scale, scale_std) = found.scaled.scaling.scale();
+    let scale = ScaleOut {
+        scale,
+        scale_std,
+        tls_frame: found.scaled.scaling.in_tls_frame(),
+        targets: found
+            .scaled
+            .targets
+            .as_ref()
+            .map(|t| t.tls_ids.clone())
+            .unwrap_or_default(),
+        retriangulated: found.scaled.cloud_source == CloudSource::Retriangulated,
+    };
+    log(&format!(
+        "{}: scale {:.6} ± {:.6} m per unit from {} targets{}; searching {} points",
+        args.cloud.display(),
+        scale.scale,
+        scale.scale_std,
+        scale.targets.len(),
+        if scale.tls_frame {
+            ", in the TLS frame"
+        } else {
+            ""
+        },
+        found.points.len()
+    ));
+    Ok(Searched {
+        network: found.network,
+        points: found.points,
+        points_in_file,
+        stride: 1,
+        scale: Some(scale),
+    })
+}
+
+fn scan(args: &Args, config: &ScanConfig, globals: Globals) -> Result<Searched> {
     let bar = counter(&format!("{}: reading", args.cloud.display()), globals.quiet);
     let scan = extract_network_from(&args.cloud, &config, &mut |pass, n| {
         if pass == Pass::Bands && bar.message().ends_with("reading") {
@@ -268,14 +377,30 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             );
         }
     }
-    let network = &scan.network;
+    Ok(Searched {
+        network: scan.network,
+        points: scan.searched,
+        points_in_file: scan.read.vertices_in_file,
+        stride: scan.stride,
+        scale: None,
+    })
+}
+
+pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    let config = config(args)?;
+    let found = match &args.device {
+        Some(device) => site(args, device, &config, globals)?,
+        None => scan(args, &config, globals)?,
+    };
+    let network = &found.network;
     let pairs = args.clearance.then(|| clearances(&network.segments));
     if args.json {
         let out = Output {
             schema: "pipemeasure.pipes/1",
             cloud: args.cloud.display().to_string(),
-            points_in_file: scan.read.vertices_in_file,
-            search_stride: scan.stride,
+            points_in_file: found.points_in_file,
+            search_stride: found.stride,
+            scale: found.scale.as_ref(),
             network,
             clearances: pairs.as_deref(),
         };
@@ -317,7 +442,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     if let Some(path) = &args.ply {
         // The points searched (all finite points, or every stride-th), the segments' indices
         // into them.
-        staged.push(stage_binary(path, &coloured(&scan.searched, network))?);
+        staged.push(stage_binary(path, &coloured(&found.points, network))?);
     }
     for file in staged {
         file.commit()?;

@@ -238,6 +238,11 @@ pub struct SiteArgs {
     /// Offset added to the TLS coordinates, e.g. 500000,5600000,0 (site coordinates).
     #[arg(long, value_parser = values::point)]
     tls_offset: Option<nalgebra::Vector3<f64>>,
+    /// A plant room (the room `simulate plant --seed` draws) instead of the mock pipes: target
+    /// boards on its walls, a walk around it looking in, its TLS scan from the room's stations,
+    /// and plant.json (every pipe segment and object) beside truth.json.
+    #[arg(long)]
+    plant: bool,
 }
 
 fn options(c: &Common) -> Result<SimulateOptions> {
@@ -414,6 +419,7 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             site.site.frames = args.frames;
             site.site.targets = args.targets;
             site.dense.noise_px = args.dense_noise;
+            site.plant = args.plant;
             if let Some(o) = args.tls_offset {
                 site.tls.offset = o.into();
             }
@@ -429,6 +435,22 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             warn_encoding(&truth);
             let pipe = truth.pipes.iter().find(|p| p.of_interest);
             let dense = truth.dense.as_ref();
+            if args.plant {
+                outln!(
+                    "simulated plant-room site: {} frames {}x{} ({}), {} targets on boards\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points\nwritten to {} (plant.json: the room's pipe segments)",
+                    truth.frames.len(),
+                    truth.camera.width,
+                    truth.camera.height,
+                    truth.camera.device,
+                    truth.targets.len(),
+                    dense.map_or(0, |d| d.points),
+                    dense.map_or(0, |d| d.observations),
+                    dense.map_or(0, |d| d.fused_points),
+                    truth.tls.as_ref().map_or(0, |t| t.points),
+                    args.common.out.display()
+                );
+                return Ok(());
+            }
             outln!(
                 "simulated site: {} frames {}x{} ({}), {} targets, pipe of interest {} (r = {:.2} mm)\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points{}\nwritten to {}",
                 truth.frames.len(),

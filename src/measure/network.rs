@@ -718,13 +718,19 @@ fn remove_planes(
             }
             continue;
         }
+        // The plane's edges leave the pool with it (see below): a corner's points, whose
+        // normals turned half-way, would otherwise lend a later plane through a pipe's strip
+        // their metres of extent along the corner.
+        let near = |q: usize| {
+            drop[q] || (n.dot(&cloud.point_at(q)) - d).abs() <= floor.max(cap)
+        };
+        remaining.retain(|&q| !near(q));
+        pool.retain(|&q| !near(q));
         planes.push(RemovedPlane {
             normal: n.into(),
             point: (mean + cloud.origin).into(),
             points: inliers.len(),
         });
-        remaining.retain(|&q| !drop[q]);
-        pool.retain(|&q| !drop[q]);
     }
     // The planes' edges and corners: points on a removed plane whose normals turned with the
     // corner (their neighbourhoods straddle two walls) would join everything that touches
@@ -740,8 +746,16 @@ fn remove_planes(
     (planes, remaining)
 }
 
-/// The standard deviation of the points across their main direction within the plane of
-/// normal `n` (m): a wall's is metres, a strip along a pipe's is centimetres.
+/// Side of the in-plane grid cells whose occupancy measures a plane's filled area (m).
+const PLANE_CELL_M: f64 = 0.05;
+
+/// How wide the points of a plane of normal `n` are (m), the smaller of two measures:
+/// - the standard deviation across their main direction in the plane: a wall's is metres, a
+///   strip along one pipe's is centimetres;
+/// - their filled area (cells of [`PLANE_CELL_M`] holding a point) over their length (√12 ×
+///   the standard deviation along the main direction): a wall's is metres, while the side
+///   strips of a riser and of the run its elbow turns into lie in one plane, an L of strips
+///   metres across but centimetres wide.
 fn in_plane_width(cloud: &Cloud, idx: &[usize], n: &Vector3<f64>) -> f64 {
     let Some((_, mean, _)) = plane_of(idx.iter().map(|&q| cloud.point_at(q))) else {
         return 0.0;
@@ -754,10 +768,27 @@ fn in_plane_width(cloud: &Cloud, idx: &[usize], n: &Vector3<f64>) -> f64 {
     }
     c /= idx.len() as f64;
     let eig = nalgebra::SymmetricEigen::new(c);
-    let mut e: Vec<f64> = eig.eigenvalues.iter().copied().collect();
-    e.sort_by(f64::total_cmp);
+    let mut order: Vec<usize> = (0..3).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
     // The two in-plane variances are the two largest; the smaller of them is the width.
-    e[1].max(0.0).sqrt()
+    let spread = eig.eigenvalues[order[1]].max(0.0).sqrt();
+    let (major, minor) = (
+        eig.eigenvectors.column(order[2]).into_owned(),
+        eig.eigenvectors.column(order[1]).into_owned(),
+    );
+    let cells: std::collections::HashSet<(i64, i64)> = idx
+        .iter()
+        .map(|&q| {
+            let v = cloud.point_at(q) - mean;
+            (
+                (v.dot(&major) / PLANE_CELL_M).floor() as i64,
+                (v.dot(&minor) / PLANE_CELL_M).floor() as i64,
+            )
+        })
+        .collect();
+    let length = (12.0 * eig.eigenvalues[order[2]].max(0.0)).sqrt();
+    let filled = cells.len() as f64 * PLANE_CELL_M * PLANE_CELL_M / length.max(PLANE_CELL_M);
+    spread.min(filled)
 }
 
 /// Step 2: the connected components of the positions `remaining` on a grid of

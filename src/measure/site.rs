@@ -73,6 +73,15 @@ pub enum SiteError {
         #[source]
         source: ScaleError,
     },
+    /// The pipe network.
+    #[error("the pipe network of {}: {source}", path.display())]
+    Network {
+        /// The cloud.
+        path: PathBuf,
+        /// Why.
+        #[source]
+        source: super::network::NetworkError,
+    },
     /// The pipe fit.
     #[error("fitting the pipe in {}: {source}", path.display())]
     Fit {
@@ -686,19 +695,35 @@ pub enum CloudSource {
     Retriangulated,
 }
 
-/// Measures the site: `points` is the cloud of `request.cloud`, `scan` the TLS scan's points
-/// (when given).
+/// A site's cloud with its scale: the points (re-triangulated through the profile at the
+/// re-adjusted poses when the cloud's `.vis` is there), still in the cloud's own frame; the
+/// scale (given or from the targets) whose [`Scaling::transform`] takes them to metres (and
+/// into the TLS frame).
+#[derive(Clone, Debug)]
+pub struct ScaledCloud {
+    /// The scale used.
+    pub scaling: Scaling,
+    /// The targets' scale, when it came from them.
+    pub targets: Option<SiteScale>,
+    /// The points (cloud frame).
+    pub points: RetriangulatedCloud,
+    /// How the cloud was used.
+    pub cloud_source: CloudSource,
+}
+
+/// The scale of the site's cloud `points` (from `request.scale`, else from the targets) and the
+/// points to measure: the first steps of [`measure_site`], shared with the pipe network of a
+/// site's cloud.
 ///
 /// # Errors
 ///
 /// [`SiteError`] naming the input and step that failed.
-pub fn measure_site(
+pub fn scaled_cloud(
     request: &SiteRequest,
     points: &[Vector3<f64>],
-    scan: Option<&[Vector3<f64>]>,
     log: &dyn Fn(&str),
     progress: &(dyn Fn(usize) + Sync),
-) -> Result<SiteMeasurement, SiteError> {
+) -> Result<ScaledCloud, SiteError> {
     let (scaling, targets) = match request.scale {
         Some(s) if s.is_finite() && s > 0.0 => (Scaling::Given(s), None),
         Some(s) => {
@@ -752,6 +777,75 @@ pub fn measure_site(
         }
         None => (as_given(points), CloudSource::AsGiven),
     };
+    Ok(ScaledCloud {
+        scaling,
+        targets,
+        points,
+        cloud_source,
+    })
+}
+
+/// The pipe network of a site's cloud ([`site_network`]).
+#[derive(Clone, Debug)]
+pub struct SiteNetwork {
+    /// The cloud's scale and the points before it.
+    pub scaled: ScaledCloud,
+    /// The points searched: in metres, in the TLS frame when the targets gave a similarity.
+    pub points: Vec<Vector3<f64>>,
+    /// The network (its `inlier_indices` index [`SiteNetwork::points`]).
+    pub network: super::network::Network,
+}
+
+/// The pipe network of a site's photogrammetric cloud `points`: the cloud scaled as for the
+/// main command ([`scaled_cloud`]: from the targets against the TLS list, re-triangulated at the
+/// re-adjusted poses), brought into metres (and the TLS frame) and searched whole
+/// ([`super::network::extract_network`]).
+///
+/// # Errors
+///
+/// [`SiteError`] naming the input and step that failed.
+pub fn site_network(
+    request: &SiteRequest,
+    points: &[Vector3<f64>],
+    config: &super::network::NetworkConfig,
+    log: &dyn Fn(&str),
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<SiteNetwork, SiteError> {
+    let scaled = scaled_cloud(request, points, log, progress)?;
+    let metric =
+        super::pipe::transformed_points(&scaled.points.points, &scaled.scaling.transform(), None);
+    let network = super::network::extract_network(&metric, config).map_err(|source| {
+        SiteError::Network {
+            path: request.cloud.clone(),
+            source,
+        }
+    })?;
+    Ok(SiteNetwork {
+        scaled,
+        points: metric,
+        network,
+    })
+}
+
+/// Measures the site: `points` is the cloud of `request.cloud`, `scan` the TLS scan's points
+/// (when given).
+///
+/// # Errors
+///
+/// [`SiteError`] naming the input and step that failed.
+pub fn measure_site(
+    request: &SiteRequest,
+    points: &[Vector3<f64>],
+    scan: Option<&[Vector3<f64>]>,
+    log: &dyn Fn(&str),
+    progress: &(dyn Fn(usize) + Sync),
+) -> Result<SiteMeasurement, SiteError> {
+    let ScaledCloud {
+        scaling,
+        targets,
+        points,
+        cloud_source,
+    } = scaled_cloud(request, points, log, progress)?;
     let mut pipe = measure_pipe(
         &points.points,
         &scaling,

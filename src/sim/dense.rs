@@ -177,6 +177,23 @@ pub fn dense_observations_with(
         config.pipe_spacing_m * scale,
         config.surface_spacing_m * scale,
     );
+    let mut labels: Vec<String> = vec!["wall".into(), "floor".into()];
+    labels.extend(scene.cylinders.iter().map(|c| c.name.clone()));
+    observe_samples(&samples, labels, observe, frame_names, config, seed)
+}
+
+/// The dense observations of surface points `samples` (point, outward normal, label: an index
+/// into `labels`): each in every frame `observe` sees it in, at most `config.max_views` spread
+/// over them, with pixel noise; points seen in fewer than `config.min_views` dropped.
+#[must_use]
+pub fn observe_samples(
+    samples: &[(Point3<f64>, Vector3<f64>, u8)],
+    labels: Vec<String>,
+    observe: &Observer<'_>,
+    frame_names: &[String],
+    config: &DenseConfig,
+    seed: u64,
+) -> DenseObservations {
     let points: Vec<DensePoint> = samples
         .par_iter()
         .enumerate()
@@ -212,8 +229,6 @@ pub fn dense_observations_with(
             })
         })
         .collect();
-    let mut labels: Vec<String> = vec!["wall".into(), "floor".into()];
-    labels.extend(scene.cylinders.iter().map(|c| c.name.clone()));
     DenseObservations {
         frames: frame_names.to_vec(),
         labels,

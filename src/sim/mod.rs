@@ -11,6 +11,7 @@ pub mod dense;
 pub mod devices;
 pub mod lab;
 pub mod plant;
+pub mod plant_site;
 pub mod render;
 pub mod scene;
 pub mod sfm;

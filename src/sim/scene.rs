@@ -270,6 +270,53 @@ pub struct Scene {
     pub lights: Vec<Light>,
     /// Ambient irradiance.
     pub ambient: f64,
+    /// Solids of any shape (a plant room's parry3d compound), hit after the rectangles and
+    /// cylinders with their own albedo.
+    pub solids: Option<std::sync::Arc<Solids>>,
+}
+
+/// Solids of any shape for the camera's scene: a parry3d compound (one bounding-volume
+/// hierarchy over its sub-shapes) and each sub-shape's albedo. A plant room
+/// ([`super::plant`]) is rendered, observed and occludes through it.
+pub struct Solids {
+    /// The shapes.
+    pub compound: parry3d_f64::shape::Compound,
+    /// Per sub-shape, its albedo.
+    pub albedo: Vec<f64>,
+}
+
+impl std::fmt::Debug for Solids {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Solids")
+            .field("shapes", &self.compound.shapes().len())
+            .finish_non_exhaustive()
+    }
+}
+
+impl Solids {
+    /// The nearest hit of `origin + t·dir` with `T_MIN < t < max_t`: `(t, sub-shape, outward
+    /// normal)`.
+    fn cast(
+        &self,
+        origin: &Point3<f64>,
+        dir: &Vector3<f64>,
+        max_t: f64,
+    ) -> Option<(f64, usize, Vector3<f64>)> {
+        use parry3d_f64::math::Vector;
+        use parry3d_f64::query::Ray;
+        use parry3d_f64::shape::CompositeShapeRef;
+        // Start just past T_MIN so a ray leaving a solid's surface does not hit it again.
+        let start = origin + dir * T_MIN;
+        let ray = Ray::new(
+            Vector::new(start.x, start.y, start.z),
+            Vector::new(dir.x, dir.y, dir.z),
+        );
+        let limit = if max_t.is_finite() { max_t } else { 1e6 };
+        let (sub, hit) = CompositeShapeRef(&self.compound)
+            .cast_local_ray_and_get_normal(&ray, limit - T_MIN, true)?;
+        let n = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
+        (hit.time_of_impact > 0.0).then_some((hit.time_of_impact + T_MIN, sub as usize, n))
+    }
 }
 
 /// Rays closer than this (m) to their origin are ignored (self-intersection guard).
@@ -355,6 +402,20 @@ impl Scene {
                 best_t = t;
                 nearest = Nearest::Cylinder { k, normal, s, phi };
             }
+        }
+        if let Some(solids) = &self.solids
+            && let Some((t, sub, n)) = solids.cast(origin, dir, best_t)
+            && t < best_t
+        {
+            let normal = if n.dot(dir) < 0.0 { n } else { -n };
+            let region = (self.rects.len() as u64 + self.cylinders.len() as u64 + sub as u64 + 1)
+                << 40;
+            return Some(Hit {
+                t,
+                normal,
+                albedo: solids.albedo.get(sub).copied().unwrap_or(0.5),
+                region,
+            });
         }
         match nearest {
             Nearest::None => None,

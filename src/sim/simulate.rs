@@ -523,6 +523,11 @@ pub struct SiteOptions {
     pub dense: super::dense::DenseConfig,
     /// TLS survey.
     pub tls: super::dense::TlsConfig,
+    /// A plant room ([`super::plant_site`], drawn from the seed) instead of the mock pipes:
+    /// `site.frames` stations on a walk around it, target boards on its walls, the TLS scan
+    /// from the room's stations, and `plant.json` ([`super::plant::PlantTruth`]) beside the
+    /// truth.
+    pub plant: bool,
 }
 
 /// Simulates a pipe site into `out`.
@@ -536,13 +541,27 @@ pub fn simulate_site(
     out: &Path,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Truth, SimError> {
-    use super::dense::{dense_observations, dense_observations_with, fuse, tls_scan, tls_targets};
+    use super::dense::{
+        dense_observations, dense_observations_with, fuse, observe_samples, tls_scan, tls_targets,
+    };
     options.validate()?;
     site.site.validate()?;
     let camera = options.camera()?;
-    let scene = super::site::build_scene(&site.site, texel_size(&camera), options.seed);
-    let stations = super::site::path(&site.site, options.seed);
-    let gain = exposure_gain(&options.render, super::site::reference_irradiance(&scene));
+    let room = site.plant.then(|| super::plant::plant_room(options.seed));
+    let (scene, stations, reference) = match &room {
+        Some(room) => {
+            let scene = super::plant_site::build_scene(room, options.seed);
+            let stations = super::plant_site::path(room, site.site.frames, options.seed);
+            let reference = super::plant_site::reference_irradiance(&scene);
+            (scene, stations, reference)
+        }
+        None => {
+            let scene = super::site::build_scene(&site.site, texel_size(&camera), options.seed);
+            let reference = super::site::reference_irradiance(&scene);
+            (scene, super::site::path(&site.site, options.seed), reference)
+        }
+    };
+    let gain = exposure_gain(&options.render, reference);
     std::fs::create_dir_all(out).map_err(|e| WriteError::new(out, e))?;
     let Filmed {
         frames,
@@ -559,9 +578,11 @@ pub fn simulate_site(
     let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
     // A video's frames see each point in its own row (the cloud then carries the rolling
     // shutter's distortion, as a dense reconstruction of such frames does).
-    let obs = match &filming {
-        None => dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed),
-        Some(filming) => dense_observations_with(
+    let obs = match (&filming, &room) {
+        (None, None) => {
+            dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed)
+        }
+        (Some(filming), None) => dense_observations_with(
             &scene,
             &camera,
             &filming.dense_observer(),
@@ -569,6 +590,36 @@ pub fn simulate_site(
             &site.dense,
             options.seed,
         ),
+        (filming, Some(room)) => {
+            let scale = 3840.0 / f64::from(camera.width);
+            let samples = super::plant_site::surface_samples(
+                room,
+                site.dense.pipe_spacing_m * scale,
+                site.dense.surface_spacing_m * scale,
+            );
+            let labels = super::plant_site::labels(&room.truth);
+            let still = |f: usize, p: &nalgebra::Point3<f64>, n: &nalgebra::Vector3<f64>| {
+                super::sfm::observe(&scene, &camera, &poses[f], p, n)
+            };
+            match filming {
+                None => observe_samples(
+                    &samples,
+                    labels,
+                    &still,
+                    &names,
+                    &site.dense,
+                    options.seed,
+                ),
+                Some(filming) => observe_samples(
+                    &samples,
+                    labels,
+                    &filming.dense_observer(),
+                    &names,
+                    &site.dense,
+                    options.seed,
+                ),
+            }
+        }
     };
     obs.write(&dense_dir.join("observations.bin"))?;
     let model =
@@ -605,9 +656,39 @@ pub fn simulate_site(
         .collect();
     crate::io::vis::write(&dense_dir.join("fused.ply.vis"), &visibility)?;
 
-    // TLS scan and targets.
-    let scan = tls_scan(&scene, &site.tls, options.seed);
+    // TLS scan and targets (a plant room's from its scanner stations, offset as the targets).
+    let (scan, plant_truth) = match room {
+        Some(room) => {
+            let config = super::plant::PlantScanConfig {
+                range_noise_m: site.tls.range_noise_m,
+                ..super::plant::PlantScanConfig::default()
+            };
+            let (mut scan, mixed_pixels) = super::plant::scan(&room, &config, options.seed);
+            let offset = nalgebra::Vector3::from(site.tls.offset);
+            scan.points.iter_mut().for_each(|p| *p += offset);
+            let mut truth = room.truth.clone();
+            truth.scan = Some(super::plant::ScanTruth {
+                stations: super::plant::stations(&room, config.stations)
+                    .iter()
+                    .map(|s| [s.x, s.y, s.z])
+                    .collect(),
+                step_rad: config.step_rad,
+                range_noise_m: config.range_noise_m,
+                points: scan.len(),
+                mixed_pixels,
+            });
+            (scan, Some(truth))
+        }
+        None => (tls_scan(&scene, &site.tls, options.seed), None),
+    };
     crate::io::ply::write_binary(&out.join("tls_scan.ply"), &scan)?;
+    if let Some(plant) = &plant_truth {
+        let json = serde_json::to_vec_pretty(plant).map_err(|e| {
+            WriteError::new(out.join("plant.json"), std::io::Error::other(e))
+        })?;
+        std::fs::write(out.join("plant.json"), json)
+            .map_err(|e| WriteError::new(out.join("plant.json"), e))?;
+    }
     let targets: Vec<_> = tls_targets(&scene, &site.tls, options.seed)
         .into_iter()
         .map(|(id, p)| crate::io::tls::TlsTarget {
@@ -618,9 +699,16 @@ pub fn simulate_site(
     crate::io::tls::write_targets(&out.join("tls_targets.csv"), &targets)?;
 
     let truth = Truth {
-        pipes: site.site.pipe_truth(),
+        pipes: if site.plant {
+            Vec::new()
+        } else {
+            site.site.pipe_truth()
+        },
         tls: Some(super::truth::TlsTruth {
-            station: site.tls.station,
+            station: plant_truth
+                .as_ref()
+                .and_then(|p| p.scan.as_ref()?.stations.first().copied())
+                .unwrap_or(site.tls.station),
             offset: site.tls.offset,
             range_noise_m: site.tls.range_noise_m,
             target_noise_m: site.tls.target_noise_m,
