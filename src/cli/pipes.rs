@@ -349,7 +349,7 @@ fn site(args: &Args, device: &str, config: &ScanConfig, globals: Globals) -> Res
 
 fn scan(args: &Args, config: &ScanConfig, globals: Globals) -> Result<Searched> {
     let bar = counter(&format!("{}: reading", args.cloud.display()), globals.quiet);
-    let scan = extract_network_from(&args.cloud, &config, &mut |pass, n| {
+    let scan = extract_network_from(&args.cloud, config, &mut |pass, n| {
         if pass == Pass::Bands && bar.message().ends_with("reading") {
             bar.set_message(format!(
                 "{}: re-fitting the pipes on every point",

@@ -721,9 +721,7 @@ fn remove_planes(
         // The plane's edges leave the pool with it (see below): a corner's points, whose
         // normals turned half-way, would otherwise lend a later plane through a pipe's strip
         // their metres of extent along the corner.
-        let near = |q: usize| {
-            drop[q] || (n.dot(&cloud.point_at(q)) - d).abs() <= floor.max(cap)
-        };
+        let near = |q: usize| drop[q] || (n.dot(&cloud.point_at(q)) - d).abs() <= floor.max(cap);
         remaining.retain(|&q| !near(q));
         pool.retain(|&q| !near(q));
         planes.push(RemovedPlane {

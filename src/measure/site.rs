@@ -814,12 +814,11 @@ pub fn site_network(
     let scaled = scaled_cloud(request, points, log, progress)?;
     let metric =
         super::pipe::transformed_points(&scaled.points.points, &scaled.scaling.transform(), None);
-    let network = super::network::extract_network(&metric, config).map_err(|source| {
-        SiteError::Network {
+    let network =
+        super::network::extract_network(&metric, config).map_err(|source| SiteError::Network {
             path: request.cloud.clone(),
             source,
-        }
-    })?;
+        })?;
     Ok(SiteNetwork {
         scaled,
         points: metric,

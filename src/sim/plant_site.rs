@@ -1,6 +1,6 @@
 //! A plant room as a photogrammetric site (issue 20): the room of [`super::plant`] seen by the
 //! camera (its parry3d compound rendered, observed and occluding through
-//! [`Solids`](super::scene::Solids)), target boards on its four walls (their centres are the
+//! [`super::scene::Solids`]), target boards on its four walls (their centres are the
 //! TLS target list), lights under the ceiling, and a walk around the room's free floor looking
 //! in. The dense observations are sampled on every sub-shape's surface (pipes, elbows and
 //! flanges finely, equipment more coarsely, walls, floor and ceiling coarsest) and kept where
@@ -41,10 +41,10 @@ pub fn build_scene(room: &PlantRoom, seed: u64) -> Scene {
     // (origin at the wall's left end at the floor, u along the wall, wall length); the normal
     // u × z faces into the room.
     let walls = [
-        (Point3::new(s, width, 0.0), -Vector3::y(), width),
-        (Point3::new(length - s, 0.0, 0.0), Vector3::y(), width),
-        (Point3::new(0.0, s, 0.0), Vector3::x(), length),
-        (Point3::new(length, width - s, 0.0), -Vector3::x(), length),
+        (Point3::new(s, 0.0, 0.0), Vector3::y(), width),
+        (Point3::new(length - s, width, 0.0), -Vector3::y(), width),
+        (Point3::new(length, s, 0.0), -Vector3::x(), length),
+        (Point3::new(0.0, width - s, 0.0), Vector3::x(), length),
     ];
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xB0A7D);
     let mut scene = Scene {
@@ -116,7 +116,7 @@ fn clearance(room: &PlantRoom, p: &Point3<f64>) -> f64 {
 }
 
 /// The camera path: `frames` stations on a loop 1 m inside the walls (pushed toward the
-/// room's centre where equipment stands closer than [`EYE_CLEARANCE_M`]), looking into the
+/// room's centre where equipment stands closer than 0.45 m), looking into the
 /// room: alternately toward the centre and 35° to either side, up and down between 0.9 and
 /// 2.3 m, in landscape with a hand's roll.
 #[must_use]
@@ -156,7 +156,8 @@ pub fn path(room: &PlantRoom, frames: usize, seed: u64) -> Vec<Station> {
             );
             let aim = eye
                 + look * 3.0
-                + Vector3::z() * ([0.9, 2.3, 1.6][(k / 3) % 3] - eye.z + rng.random_range(-0.1..0.1));
+                + Vector3::z()
+                    * ([0.9, 2.3, 1.6][(k / 3) % 3] - eye.z + rng.random_range(-0.1..0.1));
             Station::held(
                 &eye,
                 &aim,
@@ -198,7 +199,11 @@ pub fn surface_samples(
         };
         let mut push = |p: Vector, n: Vector| {
             let (p, n) = (pose.transform_point(p), pose.rotation * n);
-            out.push((Point3::new(p.x, p.y, p.z), Vector3::new(n.x, n.y, n.z), label));
+            out.push((
+                Point3::new(p.x, p.y, p.z),
+                Vector3::new(n.x, n.y, n.z),
+                label,
+            ));
         };
         if let Some(c) = shape.as_cylinder() {
             let (r, h) = (c.radius, c.half_height);

@@ -312,8 +312,11 @@ impl Solids {
             Vector::new(dir.x, dir.y, dir.z),
         );
         let limit = if max_t.is_finite() { max_t } else { 1e6 };
-        let (sub, hit) = CompositeShapeRef(&self.compound)
-            .cast_local_ray_and_get_normal(&ray, limit - T_MIN, true)?;
+        let (sub, hit) = CompositeShapeRef(&self.compound).cast_local_ray_and_get_normal(
+            &ray,
+            limit - T_MIN,
+            true,
+        )?;
         let n = Vector3::new(hit.normal.x, hit.normal.y, hit.normal.z);
         (hit.time_of_impact > 0.0).then_some((hit.time_of_impact + T_MIN, sub as usize, n))
     }
@@ -408,8 +411,8 @@ impl Scene {
             && t < best_t
         {
             let normal = if n.dot(dir) < 0.0 { n } else { -n };
-            let region = (self.rects.len() as u64 + self.cylinders.len() as u64 + sub as u64 + 1)
-                << 40;
+            let region =
+                (self.rects.len() as u64 + self.cylinders.len() as u64 + sub as u64 + 1) << 40;
             return Some(Hit {
                 t,
                 normal,

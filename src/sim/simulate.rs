@@ -558,7 +558,11 @@ pub fn simulate_site(
         None => {
             let scene = super::site::build_scene(&site.site, texel_size(&camera), options.seed);
             let reference = super::site::reference_irradiance(&scene);
-            (scene, super::site::path(&site.site, options.seed), reference)
+            (
+                scene,
+                super::site::path(&site.site, options.seed),
+                reference,
+            )
         }
     };
     let gain = exposure_gain(&options.render, reference);
@@ -602,14 +606,9 @@ pub fn simulate_site(
                 super::sfm::observe(&scene, &camera, &poses[f], p, n)
             };
             match filming {
-                None => observe_samples(
-                    &samples,
-                    labels,
-                    &still,
-                    &names,
-                    &site.dense,
-                    options.seed,
-                ),
+                None => {
+                    observe_samples(&samples, labels, &still, &names, &site.dense, options.seed)
+                }
                 Some(filming) => observe_samples(
                     &samples,
                     labels,
@@ -683,9 +682,8 @@ pub fn simulate_site(
     };
     crate::io::ply::write_binary(&out.join("tls_scan.ply"), &scan)?;
     if let Some(plant) = &plant_truth {
-        let json = serde_json::to_vec_pretty(plant).map_err(|e| {
-            WriteError::new(out.join("plant.json"), std::io::Error::other(e))
-        })?;
+        let json = serde_json::to_vec_pretty(plant)
+            .map_err(|e| WriteError::new(out.join("plant.json"), std::io::Error::other(e)))?;
         std::fs::write(out.join("plant.json"), json)
             .map_err(|e| WriteError::new(out.join("plant.json"), e))?;
     }
