@@ -1392,6 +1392,43 @@ mod tests {
         assert!(get(0, 3).abs() < 1e-6, "{}", get(0, 3));
     }
 
+    /// A plane's width ([`in_plane_width`]) on exact points 1 cm apart in the plane y = 0: a
+    /// 2 × 2 m patch is a wall (its standard deviation across, 2/√12 = 0.577 m, is the smaller
+    /// measure); an L of two 5 cm strips, 2.8 m up and 6 m along (a riser's side and its
+    /// run's), spreads 1 m and more across but fills 5 cm per metre of length: not a plane.
+    #[test]
+    fn a_plane_is_filled_an_l_of_strips_is_not() {
+        let grid = |x0: f64, x1: f64, z0: f64, z1: f64| {
+            let mut pts = Vec::new();
+            let (nx, nz) = (((x1 - x0) / 0.01) as usize, ((z1 - z0) / 0.01) as usize);
+            for i in 0..nx {
+                for k in 0..nz {
+                    pts.push(Vector3::new(
+                        x0 + (i as f64 + 0.5) * 0.01,
+                        0.0,
+                        z0 + (k as f64 + 0.5) * 0.01,
+                    ));
+                }
+            }
+            pts
+        };
+        let width = |pts: &[Vector3<f64>]| {
+            let cloud = Cloud::new(pts).unwrap();
+            let all: Vec<usize> = (0..cloud.len()).collect();
+            in_plane_width(&cloud, &all, &Vector3::y())
+        };
+        let wall = width(&grid(0.0, 2.0, 0.0, 2.0));
+        assert!((wall - 2.0 / 12f64.sqrt()).abs() < 1e-3, "{wall}");
+        let mut l = grid(0.0, 0.05, 0.0, 2.8);
+        l.extend(grid(0.05, 6.05, 2.75, 2.8));
+        let strips = width(&l);
+        // Filled: (2.8 + 6) m × 5 cm (a strip lying across the cells fills one or two) over
+        // the L's length along its main direction (about 6.8 m): 0.06–0.13 m, under the plane
+        // test's 0.2 m, where the spread across alone is about 0.9 m.
+        assert!((0.06..0.13).contains(&strips), "{strips}");
+        assert!(strips < NetworkConfig::default().plane_min_width_m);
+    }
+
     /// Points on a pipe (r 57.15 mm, 0.5 mm noise) from x = 0.2 to 1.7 m at 1 m height, on a
     /// floor and beside a 0.4 m box: one segment, at the pipe's radius and ends; the floor
     /// removed as a plane; nothing of the box reported.
