@@ -196,6 +196,35 @@ fn plant_site_photogrammetric_cloud_scaled_from_its_targets() {
     assert_eq!(scale["tls_frame"], true, "{scale}");
     assert_eq!(scale["retriangulated"], true, "{scale}");
     assert!(scale["targets"].as_array().unwrap().len() >= 8, "{scale}");
+    // An unknown profile or a missing model: exit 1, the cause named, nothing written.
+    for (args, cause) in [
+        (
+            vec!["pipes", "site/dense/fused.ply", "--device", "nosuch"],
+            "unknown device `nosuch`",
+        ),
+        (
+            vec![
+                "pipes",
+                "site/dense/fused.ply",
+                "--device",
+                "p30",
+                "--sfm",
+                "nowhere",
+            ],
+            "--sfm nowhere: not found",
+        ),
+    ] {
+        let mut args = args.clone();
+        args.extend(["--csv", "bad.csv"]);
+        let (code, _, stderr) = pipemeasure(
+            tmp.path(),
+            &args,
+            &[("PIPEMEASURE_CALIBRATIONS", &calibrations)],
+        );
+        assert_eq!(code, 1, "{stderr}");
+        assert!(stderr.contains(cause), "{stderr}");
+        assert!(!tmp.path().join("bad.csv").exists());
+    }
 }
 
 /// A scan denser than the search's budget (room seed 1 at 2 mrad instead of 3: 8.5 M points,
