@@ -706,6 +706,30 @@ fn write_e57(
     w.finalize().map_err(io)
 }
 
+/// Scans `room` ([`scan_by_station`]) and records the scan in its truth: the cloud, the points
+/// each station gave, the truth.
+#[must_use]
+pub fn scan_into_truth(
+    room: PlantRoom,
+    config: &PlantScanConfig,
+    seed: u64,
+) -> (PointCloud, Vec<usize>, PlantTruth) {
+    let (cloud, mixed_pixels, per_station) = scan_by_station(&room, config, seed);
+    let at: Vec<[f64; 3]> = stations(&room, config.stations)
+        .iter()
+        .map(|s| [s.x, s.y, s.z])
+        .collect();
+    let mut truth = room.truth;
+    truth.scan = Some(ScanTruth {
+        stations: at,
+        step_rad: config.step_rad,
+        range_noise_m: config.range_noise_m,
+        points: cloud.len(),
+        mixed_pixels,
+    });
+    (cloud, per_station, truth)
+}
+
 /// `pipemeasure simulate plant`: draws the room of `seed`, scans it and writes
 /// `OUT/tls_scan.ply` (x, y, z, intensity), with `e57` also `OUT/tls_scan.e57` (one scan per
 /// station, with its pose), and `OUT/truth.json` ([`PlantTruth`]), all staged and moved into
@@ -722,17 +746,8 @@ pub fn simulate_plant(
 ) -> Result<PlantTruth, crate::io::error::WriteError> {
     std::fs::create_dir_all(out).map_err(|e| crate::io::error::WriteError::new(out, e))?;
     let room = plant_room(seed);
-    let (cloud, mixed_pixels, per_station) = scan_by_station(&room, config, seed);
     let placed = stations(&room, config.stations);
-    let at: Vec<[f64; 3]> = placed.iter().map(|s| [s.x, s.y, s.z]).collect();
-    let mut truth = room.truth;
-    truth.scan = Some(ScanTruth {
-        stations: at,
-        step_rad: config.step_rad,
-        range_noise_m: config.range_noise_m,
-        points: cloud.len(),
-        mixed_pixels,
-    });
+    let (cloud, per_station, truth) = scan_into_truth(room, config, seed);
     let ply = crate::io::ply::stage_binary(&out.join("tls_scan.ply"), &cloud)?;
     let e57 = if e57 {
         Some(crate::io::atomic::StagedFile::write_at(

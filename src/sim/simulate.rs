@@ -662,20 +662,9 @@ pub fn simulate_site(
                 range_noise_m: site.tls.range_noise_m,
                 ..super::plant::PlantScanConfig::default()
             };
-            let (mut scan, mixed_pixels) = super::plant::scan(&room, &config, options.seed);
+            let (mut scan, _, truth) = super::plant::scan_into_truth(room, &config, options.seed);
             let offset = nalgebra::Vector3::from(site.tls.offset);
             scan.points.iter_mut().for_each(|p| *p += offset);
-            let mut truth = room.truth.clone();
-            truth.scan = Some(super::plant::ScanTruth {
-                stations: super::plant::stations(&room, config.stations)
-                    .iter()
-                    .map(|s| [s.x, s.y, s.z])
-                    .collect(),
-                step_rad: config.step_rad,
-                range_noise_m: config.range_noise_m,
-                points: scan.len(),
-                mixed_pixels,
-            });
             (scan, Some(truth))
         }
         None => (tls_scan(&scene, &site.tls, options.seed), None),
