@@ -12,13 +12,12 @@ use serde_json::Value;
 /// repository's calibrations in a fresh folder; returns the folder, the exit code and stdout.
 fn quick_experiments(extra: &[&str]) -> (tempfile::TempDir, i32, String, String) {
     let tmp = tempfile::tempdir().unwrap();
-    let calibrations = concat!(env!("CARGO_MANIFEST_DIR"), "/calibrations");
     let mut args = vec!["experiments", "--quick", "--out", "ex", "--quiet"];
     args.extend_from_slice(extra);
     let (code, stdout, stderr) = pipemeasure(
         tmp.path(),
         &args,
-        &[("PIPEMEASURE_CALIBRATIONS", calibrations)],
+        &[("PIPEMEASURE_CALIBRATIONS", common::CALIBRATIONS)],
     );
     (tmp, code, stdout, stderr)
 }

@@ -15,13 +15,6 @@ use pipemeasure::sim::devices::{P30, preset_camera};
 /// Site coordinates: the TLS list and scan carry a large offset.
 const OFFSET: [f64; 3] = [500_000.0, 5_600_000.0, 100.0];
 
-fn calibrations() -> String {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("calibrations")
-        .display()
-        .to_string()
-}
-
 /// A 960×540, 20-frame p30 site in `dir/site`; returns the truth's pipe of interest (radius,
 /// axis point in TLS coordinates).
 fn simulate_site(dir: &Path) -> (f64, [f64; 3]) {
@@ -61,7 +54,11 @@ fn simulate_site(dir: &Path) -> (f64, [f64; 3]) {
 }
 
 fn run(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    pipemeasure(dir, args, &[("PIPEMEASURE_CALIBRATIONS", &calibrations())])
+    pipemeasure(
+        dir,
+        args,
+        &[("PIPEMEASURE_CALIBRATIONS", common::CALIBRATIONS)],
+    )
 }
 
 #[test]

@@ -181,13 +181,12 @@ fn plant_site_photogrammetric_cloud_scaled_from_its_targets() {
     };
     let (truth, site) = (read("site/plant.json"), read("site/truth.json"));
     let fused = site["dense"]["fused_points"].as_u64().unwrap() as usize;
-    let calibrations = format!("{}/calibrations", env!("CARGO_MANIFEST_DIR"));
     let network = check_network(
         tmp.path(),
         &truth,
         fused,
         &["pipes", "site/dense/fused.ply", "--device", "p30"],
-        &[("PIPEMEASURE_CALIBRATIONS", &calibrations)],
+        &[("PIPEMEASURE_CALIBRATIONS", common::CALIBRATIONS)],
         "plant site 2",
     );
     // Scaled by the targets into the TLS frame (the truth's, less the targets' noise), the
@@ -219,7 +218,7 @@ fn plant_site_photogrammetric_cloud_scaled_from_its_targets() {
         let (code, _, stderr) = pipemeasure(
             tmp.path(),
             &args,
-            &[("PIPEMEASURE_CALIBRATIONS", &calibrations)],
+            &[("PIPEMEASURE_CALIBRATIONS", common::CALIBRATIONS)],
         );
         assert_eq!(code, 1, "{stderr}");
         assert!(stderr.contains(cause), "{stderr}");

@@ -89,11 +89,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             format!(" --only {}", args.only.join(","))
         }
     );
-    let log = |m: &str| {
-        if !globals.quiet {
-            eprintln!("{m}");
-        }
-    };
+    let log = |message: &str| globals.log(message);
     let (ecc, t2, t3) = configs(args);
     let mut index = format!(
         "# The paper's experiments on simulated data\n\nProduced by `{command}` (pipemeasure {}).\n",

@@ -129,11 +129,7 @@ fn coloured_inliers(m: &PipeMeasurement) -> PointCloud {
 
 /// Runs the main command: parses, calls [`measure_site`], writes and prints.
 pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
-    let log = |s: &str| {
-        if !globals.quiet {
-            eprintln!("{s}");
-        }
-    };
+    let log = |message: &str| globals.log(message);
     // The destinations first: minutes of work are not lost to a missing folder.
     for path in [&args.json, &args.ply_out].into_iter().flatten() {
         check_writable(path)?;

@@ -104,6 +104,15 @@ pub struct Globals {
     pub quiet: bool,
 }
 
+impl Globals {
+    /// A progress message on stderr, unless `--quiet`.
+    pub fn log(self, message: &str) {
+        if !self.quiet {
+            eprintln!("{message}");
+        }
+    }
+}
+
 /// Parses the command line, runs it and maps the outcome to an exit code.
 pub fn main() -> ExitCode {
     let cli = Cli::parse(); // clap prints usage errors itself and exits with 2

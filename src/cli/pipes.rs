@@ -288,11 +288,7 @@ struct ScaleOut {
 }
 
 fn site(args: &Args, device: &str, config: &ScanConfig, globals: Globals) -> Result<Searched> {
-    let log = |s: &str| {
-        if !globals.quiet {
-            eprintln!("{s}");
-        }
-    };
+    let log = |message: &str| globals.log(message);
     let request = SiteRequest {
         cloud: args.cloud.clone(),
         device: Some(device.to_string()),

@@ -435,31 +435,30 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             warn_encoding(&truth);
             let pipe = truth.pipes.iter().find(|p| p.of_interest);
             let dense = truth.dense.as_ref();
-            if args.plant {
-                outln!(
-                    "simulated plant-room site: {} frames {}x{} ({}), {} targets on boards\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points\nwritten to {} (plant.json: the room's pipe segments)",
-                    truth.frames.len(),
-                    truth.camera.width,
-                    truth.camera.height,
-                    truth.camera.device,
-                    truth.targets.len(),
-                    dense.map_or(0, |d| d.points),
-                    dense.map_or(0, |d| d.observations),
-                    dense.map_or(0, |d| d.fused_points),
-                    truth.tls.as_ref().map_or(0, |t| t.points),
-                    args.common.out.display()
-                );
-                return Ok(());
-            }
+            let (what, content, room) = if args.plant {
+                (
+                    "plant-room site",
+                    " on boards".to_string(),
+                    " (plant.json: the room's pipe segments)",
+                )
+            } else {
+                (
+                    "site",
+                    format!(
+                        ", pipe of interest {} (r = {:.2} mm)",
+                        pipe.map_or("?", |p| p.name.as_str()),
+                        pipe.map_or(0.0, |p| p.radius * 1000.0)
+                    ),
+                    "",
+                )
+            };
             outln!(
-                "simulated site: {} frames {}x{} ({}), {} targets, pipe of interest {} (r = {:.2} mm)\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points{}\nwritten to {}",
+                "simulated {what}: {} frames {}x{} ({}), {} targets{content}\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points{}\nwritten to {}{room}",
                 truth.frames.len(),
                 truth.camera.width,
                 truth.camera.height,
                 truth.camera.device,
                 truth.targets.len(),
-                pipe.map_or("?", |p| p.name.as_str()),
-                pipe.map_or(0.0, |p| p.radius * 1000.0),
                 dense.map_or(0, |d| d.points),
                 dense.map_or(0, |d| d.observations),
                 dense.map_or(0, |d| d.fused_points),

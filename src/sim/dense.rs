@@ -8,7 +8,7 @@
 //!   sequence, each observation with Gaussian pixel noise (σ = 0.3 px by default: dense
 //!   matching precision). Points seen in fewer than 3 frames are dropped. In a video
 //!   ([`super::video`]) each point is seen in its own row of the rolling-shutter frame
-//!   ([`dense_observations_with`]).
+//!   ([`observe_samples`] with the video's [`Observer`]).
 //! * `fused.ply` is each point triangulated from its noisy observations through the SfM
 //!   model's own camera at its poses, in the SfM frame, as COLMAP's dense reconstruction does
 //!   (through the true camera for the perturbed-truth stand-in, whose camera was never
@@ -24,7 +24,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::scene::Scene;
-use super::sfm::{gaussian, observe};
+use super::sfm::gaussian;
 use crate::camera::BrownCamera;
 use crate::geometry::Rigid3;
 use crate::geometry::triangulation::{Observation, triangulate};
@@ -89,11 +89,28 @@ impl Default for TlsConfig {
 }
 
 /// A point to sample: position, outward normal, label index.
-type Sample = (Point3<f64>, Vector3<f64>, u8);
+pub type Sample = (Point3<f64>, Vector3<f64>, u8);
 
-/// Points on the site's surfaces: pipes around their full circumference over the central 2.4 m,
-/// the wall behind the pipes and the floor in front of them.
-fn surface_samples(scene: &Scene, pipe_spacing: f64, surface_spacing: f64) -> Vec<Sample> {
+impl DenseConfig {
+    /// The pipe and surface spacings (m) at a frame `width` pixels wide (the configured ones
+    /// are at 3840 px).
+    #[must_use]
+    pub fn spacings(&self, width: u32) -> (f64, f64) {
+        let scale = 3840.0 / f64::from(width);
+        (self.pipe_spacing_m * scale, self.surface_spacing_m * scale)
+    }
+}
+
+/// Points on the pipe site's surfaces and their labels: pipes around their full circumference
+/// over the central 2.4 m, the wall behind the pipes and the floor in front of them.
+#[must_use]
+pub fn site_samples(
+    scene: &Scene,
+    pipe_spacing: f64,
+    surface_spacing: f64,
+) -> (Vec<Sample>, Vec<String>) {
+    let mut labels: Vec<String> = vec!["wall".into(), "floor".into()];
+    labels.extend(scene.cylinders.iter().map(|c| c.name.clone()));
     let mut out = Vec::new();
     let label_of_pipe = |k: usize| (2 + k) as u8;
     for (k, c) in scene.cylinders.iter().enumerate() {
@@ -132,62 +149,20 @@ fn surface_samples(scene: &Scene, pipe_spacing: f64, surface_spacing: f64) -> Ve
             }
         }
     }
-    out
+    (out, labels)
 }
 
-/// Samples the dense observations.
-#[must_use]
-pub fn dense_observations(
-    scene: &Scene,
-    camera: &BrownCamera,
-    poses: &[Rigid3],
-    frame_names: &[String],
-    config: &DenseConfig,
-    seed: u64,
-) -> DenseObservations {
-    dense_observations_with(
-        scene,
-        camera,
-        &|f, p, n| observe(scene, camera, &poses[f], p, n),
-        frame_names,
-        config,
-        seed,
-    )
-}
-
-/// How a frame sees a surface point: `observe(frame, point, normal)`, its pixel or `None`.
+/// How a frame sees a surface point: `observe(frame, point, normal)`, its pixel or `None` (a
+/// moving rolling-shutter camera, [`super::video`], sees each point in its own row).
 pub type Observer<'a> =
     dyn Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + 'a;
-
-/// [`dense_observations`] with the pixel of surface point `p` (normal `n`) in frame `f` given
-/// by `observe(f, p, n)` (`None` when not seen): a moving rolling-shutter camera's
-/// ([`super::video`]) sees each point in its own row.
-#[must_use]
-pub fn dense_observations_with(
-    scene: &Scene,
-    camera: &BrownCamera,
-    observe: &Observer<'_>,
-    frame_names: &[String],
-    config: &DenseConfig,
-    seed: u64,
-) -> DenseObservations {
-    let scale = 3840.0 / f64::from(camera.width);
-    let samples = surface_samples(
-        scene,
-        config.pipe_spacing_m * scale,
-        config.surface_spacing_m * scale,
-    );
-    let mut labels: Vec<String> = vec!["wall".into(), "floor".into()];
-    labels.extend(scene.cylinders.iter().map(|c| c.name.clone()));
-    observe_samples(&samples, labels, observe, frame_names, config, seed)
-}
 
 /// The dense observations of surface points `samples` (point, outward normal, label: an index
 /// into `labels`): each in every frame `observe` sees it in, at most `config.max_views` spread
 /// over them, with pixel noise; points seen in fewer than `config.min_views` dropped.
 #[must_use]
 pub fn observe_samples(
-    samples: &[(Point3<f64>, Vector3<f64>, u8)],
+    samples: &[Sample],
     labels: Vec<String>,
     observe: &Observer<'_>,
     frame_names: &[String],

@@ -185,7 +185,7 @@ pub fn surface_samples(
     room: &PlantRoom,
     pipe_spacing: f64,
     surface_spacing: f64,
-) -> Vec<(Point3<f64>, Vector3<f64>, u8)> {
+) -> Vec<super::dense::Sample> {
     let mut out = Vec::new();
     for (k, (pose, shape)) in room.compound.shapes().iter().enumerate() {
         let (spacing, label) = match room.parts.get(k) {

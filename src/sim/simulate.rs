@@ -541,9 +541,7 @@ pub fn simulate_site(
     out: &Path,
     progress: &(dyn Fn(usize) + Sync),
 ) -> Result<Truth, SimError> {
-    use super::dense::{
-        dense_observations, dense_observations_with, fuse, observe_samples, tls_scan, tls_targets,
-    };
+    use super::dense::{fuse, observe_samples, site_samples, tls_scan, tls_targets};
     options.validate()?;
     site.site.validate()?;
     let camera = options.camera()?;
@@ -580,46 +578,32 @@ pub fn simulate_site(
     std::fs::create_dir_all(&dense_dir).map_err(|e| WriteError::new(&dense_dir, e))?;
     let poses: Vec<_> = stations.iter().map(|s| s.cam_from_world).collect();
     let names: Vec<_> = (0..stations.len()).map(|k| options.frame_name(k)).collect();
+    let (pipe_spacing, surface_spacing) = site.dense.spacings(camera.width);
+    let (samples, labels) = match &room {
+        Some(room) => (
+            super::plant_site::surface_samples(room, pipe_spacing, surface_spacing),
+            super::plant_site::labels(&room.truth),
+        ),
+        None => site_samples(&scene, pipe_spacing, surface_spacing),
+    };
+    let still = |f: usize, p: &nalgebra::Point3<f64>, n: &nalgebra::Vector3<f64>| {
+        super::sfm::observe(&scene, &camera, &poses[f], p, n)
+    };
     // A video's frames see each point in its own row (the cloud then carries the rolling
     // shutter's distortion, as a dense reconstruction of such frames does).
-    let obs = match (&filming, &room) {
-        (None, None) => {
-            dense_observations(&scene, &camera, &poses, &names, &site.dense, options.seed)
-        }
-        (Some(filming), None) => dense_observations_with(
-            &scene,
-            &camera,
-            &filming.dense_observer(),
-            &names,
-            &site.dense,
-            options.seed,
-        ),
-        (filming, Some(room)) => {
-            let scale = 3840.0 / f64::from(camera.width);
-            let samples = super::plant_site::surface_samples(
-                room,
-                site.dense.pipe_spacing_m * scale,
-                site.dense.surface_spacing_m * scale,
-            );
-            let labels = super::plant_site::labels(&room.truth);
-            let still = |f: usize, p: &nalgebra::Point3<f64>, n: &nalgebra::Vector3<f64>| {
-                super::sfm::observe(&scene, &camera, &poses[f], p, n)
-            };
-            match filming {
-                None => {
-                    observe_samples(&samples, labels, &still, &names, &site.dense, options.seed)
-                }
-                Some(filming) => observe_samples(
-                    &samples,
-                    labels,
-                    &filming.dense_observer(),
-                    &names,
-                    &site.dense,
-                    options.seed,
-                ),
-            }
-        }
+    let moving = filming.as_ref().map(Filming::dense_observer);
+    let observer: &super::dense::Observer<'_> = match &moving {
+        Some(moving) => moving,
+        None => &still,
     };
+    let obs = observe_samples(
+        &samples,
+        labels,
+        observer,
+        &names,
+        &site.dense,
+        options.seed,
+    );
     obs.write(&dense_dir.join("observations.bin"))?;
     let model =
         crate::io::colmap::Reconstruction::read_format(&out.join("sparse"), ModelFormat::Text)

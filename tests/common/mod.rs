@@ -5,6 +5,9 @@ use image::{ImageBuffer, Luma};
 use nalgebra::Vector2;
 use pipemeasure::camera::BrownCamera;
 
+/// The repository's device profiles, for `PIPEMEASURE_CALIBRATIONS`.
+pub const CALIBRATIONS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/calibrations");
+
 /// Renders a frame of `cam` by point-sampling `f` at the ideal normalised coordinates of every
 /// pixel centre (exact lens distortion, no image warp). `f` returns 16-bit grey levels.
 pub fn render_distorted(
