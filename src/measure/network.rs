@@ -1191,7 +1191,7 @@ fn end_of(
         return at + d * t;
     }
     let near: Vec<EndPoint> = pts.iter().copied().filter(|p| p.0 <= 0.1).collect();
-    if let Some(t) = elbow_tangent(&near, tail) {
+    if let Some(t) = elbow_tangent(&near, c.radius, tail) {
         return at + d * t;
     }
     if let Some(t) = rim_start(&near) {
@@ -1205,29 +1205,38 @@ fn end_of(
 /// surface within 3 mm of their median offset, normals radial, around at least 120° of the axis;
 /// the flange's front is where the rim begins (the 5th percentile of their axial offsets).
 fn rim_start(pts: &[EndPoint]) -> Option<f64> {
+    let rim = rim_points(pts, -0.01, 0.08, 15)?;
+    if filled_arc(rim.iter().map(|p| p.2[1].atan2(p.2[0]))) < 120f64.to_radians() {
+        return None;
+    }
+    Some(rim_front(&rim))
+}
+
+/// The points of a rim between the axial offsets `from` and `to`: 4 mm to 10 cm off the
+/// pipe's surface, normals radial, within 3 mm of their median offset (the rim's radius; a
+/// valve's body behind a flange lies further in); `None` with fewer than `min_points`.
+fn rim_points(pts: &[EndPoint], from: f64, to: f64, min_points: usize) -> Option<Vec<&EndPoint>> {
     let rim: Vec<&EndPoint> = pts
         .iter()
-        .filter(|p| (-0.01..=0.08).contains(&p.0) && p.1 > 0.004 && p.1 < 0.1 && p.3 <= 0.5)
+        .filter(|p| p.0 >= from && p.0 <= to && p.1 > 0.004 && p.1 < 0.1 && p.3 <= 0.5)
         .collect();
-    if rim.len() < 15 {
+    if rim.len() < min_points {
         return None;
     }
-    // The rim's radius: the median offset; its points those within 3 mm of it (a valve's
-    // body behind the flange lies further in).
     let mut e: Vec<f64> = rim.iter().map(|p| p.1).collect();
     let radius = upper_median(&mut e);
-    let rim: Vec<&&EndPoint> = rim
-        .iter()
+    let rim: Vec<&EndPoint> = rim
+        .into_iter()
         .filter(|p| (p.1 - radius).abs() <= 0.003)
         .collect();
-    if rim.len() < 15 || filled_arc(rim.iter().map(|p| p.2[1].atan2(p.2[0]))) < 120f64.to_radians()
-    {
-        return None;
-    }
-    let q = |v: &[f64], f: f64| v[((v.len() - 1) as f64 * f).round() as usize];
+    (rim.len() >= min_points).then_some(rim)
+}
+
+/// Where a rim begins along the axis: the 5th percentile of its points' axial offsets.
+fn rim_front(rim: &[&EndPoint]) -> f64 {
     let mut t: Vec<f64> = rim.iter().map(|p| p.0).collect();
     t.sort_by(f64::total_cmp);
-    Some(q(&t, 0.05))
+    t[((t.len() - 1) as f64 * 0.05).round() as usize]
 }
 
 /// The axial offset of a face just beyond the end ([`end_of`]), up to `reach`, if there is
@@ -1274,77 +1283,128 @@ fn straight_up_to(pts: &[EndPoint], face: f64) -> bool {
 }
 
 /// When the face at `face` is the back of a flange (its front faces away from every
-/// station): the flange's rim, points off the pipe's surface by 4 mm to 10 cm with radial
-/// normals between the end and the face; the front is where the rim begins (its 5th
-/// percentile along the axis). `None` without a rim (a wall, a floor, a flange's front).
+/// station): the flange's rim ([`rim_points`]) between the end and the face, standing at
+/// least 1 cm proud of the pipe (a flange's outside diameter exceeds its pipe's by 5 cm or
+/// more, ASME B16.5); the front is where the rim begins. `None` without a rim (a wall, a
+/// floor, a flange's front): the few noisy surface points where a pipe enters a wall, 4–7 mm
+/// off at scattered offsets, are no rim.
 fn flange_front(pts: &[EndPoint], face: f64) -> Option<f64> {
-    let sin30 = 0.5;
-    let mut rim: Vec<f64> = pts
-        .iter()
-        .filter(|p| (-0.01..face - 0.002).contains(&p.0) && p.1 > 0.004 && p.3 <= sin30)
-        .map(|p| p.0)
-        .collect();
-    if rim.len() < 10 {
-        return None;
-    }
-    rim.sort_by(f64::total_cmp);
-    Some(rim[rim.len() / 20])
+    let rim = rim_points(pts, -0.01, face - 0.002, 10)?;
+    let mut e: Vec<f64> = rim.iter().map(|p| p.1).collect();
+    (upper_median(&mut e) >= 0.01).then(|| rim_front(&rim))
 }
 
-/// The tangent point of an elbow beyond the end ([`end_of`]): the offset `te` minimising the
-/// squared residuals of the surface points (within 15 mm of the straight surface, normals
-/// radial) when those beyond `te` follow `e = (u·v)(t − te)²`; kept when the improvement over
-/// the straight pipe alone is significant (25 σ², σ from the straight part).
-fn elbow_tangent(pts: &[EndPoint], tail: f64) -> Option<f64> {
+/// Bend radii tried for an elbow, in units of the pipe's outside radius: short-radius
+/// elbows (ASME B16.9: R = 1.0 × the nominal size, 1.7–2 r), long-radius ones (1.5 ×, 2.5–3 r)
+/// and 3D–5D bends (6–10 r).
+const BEND_RADII: [f64; 13] = [
+    1.5, 1.75, 2.0, 2.25, 2.5, 2.75, 3.0, 3.5, 4.0, 5.0, 6.0, 8.0, 10.0,
+];
+
+/// The tangent point of an elbow beyond the end ([`end_of`]): the surface points (within
+/// 15 mm of the straight surface, normals radial) beyond the tangent point `te` lie on a
+/// torus, the elbow's surface — its centre line a circle of radius `R` leaving the axis at
+/// `te` toward the bend direction `θ`, its tube the pipe's radius. `te`, `θ` and `R`
+/// minimise the truncated squared residuals (`min(e², c²)`, `c = max(3σ, 2 mm)`: points of
+/// a support, a flange or the next leg saturate) over a grid refined once; the tangent is
+/// kept when it explains the points significantly better than the straight pipe alone
+/// (25 σ², σ from the straight part).
+///
+/// A parabola (`δ = s²/2R`) fits only the first centimetres past the tangent: on the
+/// elbow's inside the surface leaves the straight one `R/(R − r)` times faster than the
+/// centre line, on its outside `R/(R + r)` times slower, and a free parabola fitted to both
+/// put the tangent 1.5–2.6 cm early on photogrammetric clouds.
+fn elbow_tangent(pts: &[EndPoint], radius: f64, tail: f64) -> Option<f64> {
     let cos30 = 30f64.to_radians().cos();
-    let surface: Vec<&EndPoint> = pts
+    let mut surface: Vec<[f64; 4]> = pts
         .iter()
         .filter(|p| p.1.abs() <= 0.015 && p.3 <= (1.0 - cos30 * cos30).sqrt())
+        .map(|p| {
+            let rho = radius + p.1;
+            [p.0, p.1, p.2[0] * rho, p.2[1] * rho]
+        })
         .collect();
     let mut straight: Vec<f64> = surface
         .iter()
-        .filter(|p| p.0 < -0.5 * tail)
-        .map(|p| p.1 * p.1)
+        .filter(|p| p[0] < -0.5 * tail)
+        .map(|p| p[1] * p[1])
         .collect();
     if straight.len() < 20 || surface.len() < 40 {
         return None;
     }
     let sigma2 = upper_median(&mut straight) / 0.455;
-    let rss0: f64 = surface.iter().map(|p| p.1 * p.1).sum();
-    let mut best = (rss0, None);
-    let steps = ((tail + 0.05) / 0.002) as usize;
-    for k in 0..=steps {
-        let te = -tail + k as f64 * 0.002;
-        let (mut a, mut b, mut rss) = ([0.0f64; 3], [0.0f64; 2], 0.0);
-        for p in &surface {
-            let s = p.0 - te;
-            if s <= 0.0 {
-                rss += p.1 * p.1;
-                continue;
-            }
-            let g = [p.2[0] * s * s, p.2[1] * s * s];
-            a[0] += g[0] * g[0];
-            a[1] += g[0] * g[1];
-            a[2] += g[1] * g[1];
-            b[0] += g[0] * p.1;
-            b[1] += g[1] * p.1;
-            rss += p.1 * p.1;
-        }
-        let det = a[0] * a[2] - a[1] * a[1];
-        if det <= 0.0 {
-            continue;
-        }
-        let v = [
-            (a[2] * b[0] - a[1] * b[1]) / det,
-            (a[0] * b[1] - a[1] * b[0]) / det,
-        ];
-        let fit = rss - (v[0] * b[0] + v[1] * b[1]);
-        if fit < best.0 {
-            best = (fit, Some(te));
-        }
+    let c2 = (9.0 * sigma2).max(4e-6);
+    surface.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    // prefix[k]: the straight pipe's truncated cost of the first k points.
+    let mut prefix = Vec::with_capacity(surface.len() + 1);
+    prefix.push(0.0);
+    for p in &surface {
+        prefix.push(prefix[prefix.len() - 1] + (p[1] * p[1]).min(c2));
     }
-    let (rss, te) = best;
-    te.filter(|_| rss0 - rss > 25.0 * sigma2)
+    let straight_cost = prefix[surface.len()];
+    let cost = |theta: f64, bend: f64, te: f64| -> f64 {
+        let (sin, cos) = theta.sin_cos();
+        let from = surface.partition_point(|p| p[0] <= te);
+        let mut sum = prefix[from];
+        for p in &surface[from..] {
+            // w = q − C, C = te·axis + R·v; n = axis × v = (−sin θ, cos θ, 0).
+            let (wx, wy, wz) = (p[2] - bend * cos, p[3] - bend * sin, p[0] - te);
+            let h = -wx * sin + wy * cos;
+            let in_plane = (wx * wx + wy * wy + wz * wz - h * h).max(0.0).sqrt();
+            let e = ((in_plane - bend).hypot(h)) - radius;
+            sum += (e * e).min(c2);
+        }
+        sum
+    };
+    let te_min = -tail;
+    let te_max = 0.05;
+    // Coarse grid (θ 15°, te 4 mm, every bend radius), then around its best (θ 2.5°,
+    // te 1 mm, the neighbouring radii). Ties go to the lowest index: the same answer on any
+    // thread count.
+    let best_of = |grid: Vec<(f64, f64, f64)>| -> Option<(f64, (f64, f64, f64))> {
+        grid.into_par_iter()
+            .map(|(theta, bend, te)| (cost(theta, bend, te), (theta, bend, te)))
+            .min_by(|a, b| a.0.total_cmp(&b.0))
+    };
+    let te_steps = ((te_max - te_min) / 0.004).floor() as usize;
+    let coarse: Vec<(f64, f64, f64)> = (0..24)
+        .flat_map(|i| {
+            BEND_RADII.iter().flat_map(move |&k| {
+                (0..=te_steps).map(move |j| {
+                    (
+                        (i as f64 * 15.0).to_radians(),
+                        k * radius,
+                        te_min + j as f64 * 0.004,
+                    )
+                })
+            })
+        })
+        .collect();
+    let (_, (theta0, bend0, te0)) = best_of(coarse)?;
+    let k0 = BEND_RADII
+        .iter()
+        .position(|&k| (k * radius - bend0).abs() < 1e-12)
+        .unwrap_or(0);
+    let bends: Vec<f64> = BEND_RADII[k0.saturating_sub(1)..(k0 + 2).min(BEND_RADII.len())]
+        .iter()
+        .map(|k| k * radius)
+        .collect();
+    let fine: Vec<(f64, f64, f64)> = (-4..=4)
+        .flat_map(|i| {
+            let bends = &bends;
+            bends.iter().flat_map(move |&bend| {
+                (-4..=4).map(move |j| {
+                    (
+                        theta0 + (i as f64 * 2.5).to_radians(),
+                        bend,
+                        (te0 + j as f64 * 0.001).clamp(te_min, te_max),
+                    )
+                })
+            })
+        })
+        .collect();
+    let (best, (_, _, te)) = best_of(fine)?;
+    (straight_cost - best > 25.0 * sigma2).then_some(te)
 }
 
 #[cfg(test)]
