@@ -423,7 +423,10 @@ fn pieces_of(
     let mut order: Vec<(f64, usize)> = inliers.iter().map(|&k| (along(k, cyl), k)).collect();
     order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     let mut out = Vec::new();
-    for run in order.chunk_by(|a, b| b.0 - a.0 <= config.gap_m) {
+    let runs = order
+        .chunk_by(|a, b| b.0 - a.0 <= config.gap_m)
+        .flat_map(|run| split_unbridged(cloud, cyl, run, config.gap_m));
+    for run in runs {
         if run.len() < config.cylinder.min_inliers {
             continue;
         }
@@ -480,6 +483,45 @@ fn pieces_of(
         };
         out.push(piece);
     }
+    out
+}
+
+/// Largest angle between a point's normal and the radial direction for the point to hold a
+/// run together ([`split_unbridged`]).
+const BRIDGE_NORMAL_ANGLE_DEG: f64 = 15.0;
+
+/// The run `run` (inliers `(t, k)` in axial order, no gap over `gap`) split where no point
+/// with a radial normal (within [`BRIDGE_NORMAL_ANGLE_DEG`]) lies over more than `gap`: the
+/// points in such a stretch are dropped. A pipe's surface has radial normals; where a
+/// valve's box or a support's face crosses the candidate's surface, its points pass the
+/// inlier test (normals within 30°) along lines at the faces' angle and had joined a
+/// valve's two flange rims, 0.66 m apart, into one "pipe". A run without such a stretch is
+/// returned whole, unchanged.
+fn split_unbridged<'a>(
+    cloud: &Cloud,
+    cyl: &Cylinder,
+    run: &'a [(f64, usize)],
+    gap: f64,
+) -> Vec<&'a [(f64, usize)]> {
+    let cos_max = BRIDGE_NORMAL_ANGLE_DEG.to_radians().cos();
+    let radial: Vec<usize> = run
+        .iter()
+        .enumerate()
+        .filter(|&(_, &(_, k))| {
+            let (n, _) = cloud.local(k);
+            n.dot(&cyl.radial(&(cloud.point(k) + cloud.origin))).abs() >= cos_max
+        })
+        .map(|(i, _)| i)
+        .collect();
+    let mut out = Vec::new();
+    let mut from = 0;
+    for w in radial.windows(2) {
+        if run[w[1]].0 - run[w[0]].0 > gap {
+            out.push(&run[from..=w[0]]);
+            from = w[1];
+        }
+    }
+    out.push(&run[from..]);
     out
 }
 
@@ -1543,5 +1585,87 @@ mod tests {
         );
         assert_eq!(s.nominal.nps, Some("4"));
         assert!(network.planes.iter().any(|p| p.normal[2].abs() > 0.99));
+    }
+
+    /// End points ([`EndPoint`]) of a pipe (r 30.15 mm, 0.7 mm noise) straight up to its
+    /// tangent point at −3 cm, then a long-radius 90° elbow (R 76.2 mm, ASME B16.9 NPS 2)
+    /// bending toward 40°: the tangent from the torus within 3 mm; the straight pipe alone
+    /// has none.
+    #[test]
+    fn an_elbow_s_tangent_is_where_its_torus_leaves_the_pipe() {
+        let (r, bend, te, theta) = (0.03015, 0.0762, -0.03, 40f64.to_radians());
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut noise = || (rng.random::<f64>() - 0.5) * 0.7e-3 * 12f64.sqrt();
+        let v = Vector3::new(theta.cos(), theta.sin(), 0.0);
+        let b = Vector3::z().cross(&v);
+        let end_point = |q: Vector3<f64>, n: Vector3<f64>| -> Option<EndPoint> {
+            let rho = q.xy().norm();
+            (q.z <= 0.1 && rho >= 0.5 * r && rho <= r + 0.1)
+                .then(|| (q.z, rho - r, [q.x / rho, q.y / rho], n.z.abs()))
+        };
+        let ring = |psi: f64, m: Vector3<f64>| m * psi.cos() + b * psi.sin();
+        let mut straight = Vec::new();
+        for i in 0..300 {
+            let t = -0.15 + (te + 0.15) * (i as f64 + 0.5) / 300.0;
+            for k in 0..24 {
+                let n = ring(std::f64::consts::TAU * k as f64 / 24.0, v);
+                let q = Vector3::new(0.0, 0.0, t) + n * (r + noise());
+                straight.extend(end_point(q, n));
+            }
+        }
+        assert_eq!(elbow_tangent(&straight, r, 0.15), None);
+        let mut pts = straight;
+        for i in 0..200 {
+            let phi = std::f64::consts::FRAC_PI_2 * (i as f64 + 0.5) / 200.0;
+            let centre = Vector3::new(0.0, 0.0, te)
+                + v * bend * (1.0 - phi.cos())
+                + Vector3::z() * bend * phi.sin();
+            let m = v * phi.cos() - Vector3::z() * phi.sin();
+            for k in 0..24 {
+                let n = ring(std::f64::consts::TAU * k as f64 / 24.0, m);
+                pts.extend(end_point(centre + n * (r + noise()), n));
+            }
+        }
+        let found = elbow_tangent(&pts, r, 0.15).expect("an elbow");
+        assert!((found - te).abs() < 3e-3, "{found}");
+    }
+
+    /// A valve between two flanges, no pipe: two flange rims (r 141 mm, 6 cm long) 0.6 m
+    /// apart and the valve's box between them (0.248 m square), whose faces cross the rims'
+    /// cylinder along lines with normals 28° off radial (inside the inlier test's 30°, outside
+    /// the 15° that holds a run together). No segment of the rims' radius; with 30° the box
+    /// joins the rims into one 0.4 m "NPS 10 pipe".
+    #[test]
+    fn a_valve_s_box_does_not_join_its_flange_rims() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut noise = || (rng.random::<f64>() - 0.5) * 0.5e-3 * 12f64.sqrt();
+        let (r, h) = (0.141, 0.124);
+        let mut points = Vec::new();
+        for y0 in [0.0, 0.66] {
+            for i in 0..30 {
+                let y = y0 + 0.06 * (i as f64 + 0.5) / 30.0;
+                for k in 0..220 {
+                    let a = std::f64::consts::TAU * k as f64 / 220.0;
+                    let rr = r + noise();
+                    points.push(Vector3::new(rr * a.cos(), y, 2.0 + rr * a.sin()));
+                }
+            }
+        }
+        for i in 0..120 {
+            let y = 0.06 + 0.6 * (i as f64 + 0.5) / 120.0;
+            for j in 0..46 {
+                let u = -h + 2.0 * h * (j as f64 + 0.5) / 46.0;
+                for (x, z) in [(u, -h), (u, h), (-h, u), (h, u)] {
+                    points.push(Vector3::new(x + noise(), y, 2.0 + z + noise()));
+                }
+            }
+        }
+        let network = extract_network(&points, &NetworkConfig::default()).unwrap();
+        let rims: Vec<_> = network
+            .segments
+            .iter()
+            .filter(|s| (s.radius_m - r).abs() < 0.01)
+            .collect();
+        assert!(rims.is_empty(), "{rims:#?}");
     }
 }
