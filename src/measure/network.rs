@@ -1403,42 +1403,28 @@ fn elbow_tangent(pts: &[EndPoint], radius: f64, tail: f64) -> Option<f64> {
     // Coarse grid (θ 15°, te 4 mm, every bend radius), then around its best (θ 2.5°,
     // te 1 mm, the neighbouring radii). Ties go to the lowest index: the same answer on any
     // thread count.
-    let best_of = |grid: Vec<(f64, f64, f64)>| -> Option<(f64, (f64, f64, f64))> {
+    let best_of = |grid: Vec<(f64, usize, f64)>| -> Option<(f64, (f64, usize, f64))> {
         grid.into_par_iter()
-            .map(|(theta, bend, te)| (cost(theta, bend, te), (theta, bend, te)))
+            .map(|(theta, k, te)| (cost(theta, BEND_RADII[k] * radius, te), (theta, k, te)))
             .min_by(|a, b| a.0.total_cmp(&b.0))
     };
     let te_steps = ((te_max - te_min) / 0.004).floor() as usize;
-    let coarse: Vec<(f64, f64, f64)> = (0..24)
+    let coarse: Vec<(f64, usize, f64)> = (0..24)
         .flat_map(|i| {
-            BEND_RADII.iter().flat_map(move |&k| {
-                (0..=te_steps).map(move |j| {
-                    (
-                        (i as f64 * 15.0).to_radians(),
-                        k * radius,
-                        te_min + j as f64 * 0.004,
-                    )
-                })
+            (0..BEND_RADII.len()).flat_map(move |k| {
+                (0..=te_steps)
+                    .map(move |j| ((i as f64 * 15.0).to_radians(), k, te_min + j as f64 * 0.004))
             })
         })
         .collect();
-    let (_, (theta0, bend0, te0)) = best_of(coarse)?;
-    let k0 = BEND_RADII
-        .iter()
-        .position(|&k| (k * radius - bend0).abs() < 1e-12)
-        .unwrap_or(0);
-    let bends: Vec<f64> = BEND_RADII[k0.saturating_sub(1)..(k0 + 2).min(BEND_RADII.len())]
-        .iter()
-        .map(|k| k * radius)
-        .collect();
-    let fine: Vec<(f64, f64, f64)> = (-4..=4)
+    let (_, (theta0, k0, te0)) = best_of(coarse)?;
+    let fine: Vec<(f64, usize, f64)> = (-4..=4)
         .flat_map(|i| {
-            let bends = &bends;
-            bends.iter().flat_map(move |&bend| {
+            (k0.saturating_sub(1)..(k0 + 2).min(BEND_RADII.len())).flat_map(move |k| {
                 (-4..=4).map(move |j| {
                     (
                         theta0 + (i as f64 * 2.5).to_radians(),
-                        bend,
+                        k,
                         (te0 + j as f64 * 0.001).clamp(te_min, te_max),
                     )
                 })
