@@ -232,7 +232,7 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         .map(|k| format!("{} {} 0\n", (k % 50) as f64 * 0.01, (k / 50) as f64 * 0.01))
         .collect();
     write("plane.ply", &format!("{}{plane}", header(2500)));
-    expect_error(&["--scale", "1", "plane.ply"], 3, "no cylinder found");
+    expect_error(&["--scale", "1", "plane.ply"], 3, "no pipe found");
     // An option value out of range is a usage error naming the option (issue 21: it was 1).
     expect_error(
         &["--scale=-2", "plane.ply"],

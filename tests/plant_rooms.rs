@@ -195,6 +195,7 @@ fn plant_site_photogrammetric_cloud_scaled_from_its_targets() {
     assert_eq!(scale["tls_frame"], true, "{scale}");
     assert_eq!(scale["retriangulated"], true, "{scale}");
     assert!(scale["targets"].as_array().unwrap().len() >= 8, "{scale}");
+    main_command_measures_the_pipe_of_interest(tmp.path(), &truth);
     // An unknown profile or a missing model: exit 1, the cause named, nothing written.
     for (args, cause) in [
         (
@@ -224,6 +225,63 @@ fn plant_site_photogrammetric_cloud_scaled_from_its_targets() {
         assert!(stderr.contains(cause), "{stderr}");
         assert!(!tmp.path().join("bad.csv").exists());
     }
+}
+
+/// The main command on the same site, through the pipe-network engine: `--near` the middle of
+/// the tee's branch (between the header above, its flanges and the floor) measures that branch;
+/// `--axis-hint 0,0,1` on the whole room measures a vertical pipe of the truth, ends included.
+/// Each within the acceptance's bounds (radius 0.5 mm, ends 2 cm, nominal size).
+fn main_command_measures_the_pipe_of_interest(dir: &std::path::Path, truth: &Value) {
+    let segments = truth["segments"].as_array().unwrap();
+    let branch = segments.iter().find(|s| s["run"] == "branch").unwrap();
+    let middle = (v(&branch["start"]) + v(&branch["end"])) * 0.5;
+    let near = format!("{},{},{}", middle.x, middle.y, middle.z);
+    let measure = |extra: &[&str]| -> Value {
+        let mut args = vec![
+            "--device",
+            "p30",
+            "site/dense/fused.ply",
+            "--json",
+            "m.json",
+        ];
+        args.extend_from_slice(extra);
+        args.push("--quiet");
+        let (code, stdout, stderr) = pipemeasure(
+            dir,
+            &args,
+            &[("PIPEMEASURE_CALIBRATIONS", common::CALIBRATIONS)],
+        );
+        assert_eq!(code, 0, "{extra:?}: {stderr}");
+        eprintln!("{extra:?}: {stdout}");
+        let m: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("m.json")).unwrap()).unwrap();
+        serde_json::json!({
+            "start": m["segment_start"], "end": m["segment_end"], "radius": m["radius_m"],
+            "nps": m["nominal"]["nps"], "found": m["segments_found"],
+        })
+    };
+    let check = |s: &Value, g: &Value, whole: bool| {
+        assert!(on(s, g), "{g} is not on {s}");
+        let r = s["outside_radius_m"].as_f64().unwrap();
+        assert!(
+            (g["radius"].as_f64().unwrap() - r).abs() < 0.5e-3,
+            "{g} vs {s}"
+        );
+        assert_eq!(g["nps"], s["nps"], "{g} vs {s}");
+        if whole {
+            assert!(endpoint_error(s, g) < 0.02, "{g} vs {s}");
+        }
+    };
+    let g = measure(&["--near", &near, "--within", "0.4"]);
+    check(branch, &g, false);
+    let g = measure(&["--axis-hint", "0,0,1"]);
+    let vertical = segments
+        .iter()
+        .find(|s| on(s, &g))
+        .unwrap_or_else(|| panic!("{g} is on no pipe of the truth"));
+    let d = (v(&vertical["end"]) - v(&vertical["start"])).normalize();
+    assert!(d.z.abs() > 0.99, "{vertical}");
+    check(vertical, &g, true);
 }
 
 /// A scan denser than the search's budget (room seed 1 at 2 mrad instead of 3: 8.5 M points,

@@ -35,12 +35,14 @@ pub struct Args {
 /// The cylinder search's options, shared by `fit-cylinder` and the main command.
 #[derive(Debug, Default, clap::Args)]
 pub struct SearchArgs {
-    /// Smallest radius to accept (m).
-    #[arg(long, default_value_t = 0.005, value_parser = values::non_negative)]
-    radius_min: f64,
-    /// Largest radius to accept (m), above `--radius-min`.
-    #[arg(long, default_value_t = 1.0, value_parser = values::positive)]
-    radius_max: f64,
+    /// Smallest radius to accept (m): by default 0.005 for `fit-cylinder`, 0.015 for the main
+    /// command (the pipe engine's range, as `pipes`).
+    #[arg(long, value_parser = values::non_negative)]
+    radius_min: Option<f64>,
+    /// Largest radius to accept (m), above `--radius-min`: by default 1 for `fit-cylinder`,
+    /// 0.35 for the main command (wider curved surfaces, housings and tanks, are not pipes).
+    #[arg(long, value_parser = values::positive)]
+    radius_max: Option<f64>,
     /// Keep only points near this point (`X,Y,Z`), with `--within`. For the main command in the
     /// measured frame: TLS coordinates when the targets give a similarity.
     #[arg(long, value_parser = values::point)]
@@ -67,12 +69,24 @@ impl SearchArgs {
         }
     }
 
-    /// The fitting configuration, checked: every value comes from an option, so what the
-    /// library refuses is a usage error.
+    /// The fitting configuration of `fit-cylinder` (radii 0.005–1 m by default), checked.
     pub fn config(&self) -> Result<CylinderConfig> {
+        self.config_within(0.005, 1.0)
+    }
+
+    /// The main command's configuration: by default the pipe engine's radius range
+    /// ([`NetworkConfig::default`], as `pipes`), checked.
+    pub fn pipe_config(&self) -> Result<CylinderConfig> {
+        let engine = NetworkConfig::default().cylinder;
+        self.config_within(engine.radius_min, engine.radius_max)
+    }
+
+    /// The configuration with the radius range's defaults `min`–`max`, checked: every value
+    /// comes from an option, so what the library refuses is a usage error.
+    fn config_within(&self, min: f64, max: f64) -> Result<CylinderConfig> {
         checked(CylinderConfig {
-            radius_min: self.radius_min,
-            radius_max: self.radius_max,
+            radius_min: self.radius_min.unwrap_or(min),
+            radius_max: self.radius_max.unwrap_or(max),
             axis_hint: self.axis_hint.map(|h| (h, 20f64.to_radians())),
             seed: self.seed,
             ..CylinderConfig::default()

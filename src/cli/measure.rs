@@ -145,7 +145,7 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
         scale: args.scale,
         min_semi_minor_px: args.min_semi_minor,
         region: args.search.region()?,
-        cylinder: args.search.config()?,
+        cylinder: args.search.pipe_config()?,
         readout_time_s: args.readout_time.map(|ms| ms * 1e-3),
         global_shutter: args.rolling_shutter == RollingShutterMode::Off,
     };
@@ -238,6 +238,25 @@ fn print_summary(out: &SiteReport, args: &Args) -> Result<()> {
         } else {
             "scaled cloud's"
         }
+    );
+    let (a, b, n) = (out.segment_start, out.segment_end, &out.nominal);
+    outln!(
+        "segment from ({:.4}, {:.4}, {:.4}) to ({:.4}, {:.4}, {:.4}), {:.3} m; nominal {} (OD {:.2} mm, measured {:+.2} mm); {} pipe segment{} found",
+        a[0],
+        a[1],
+        a[2],
+        b[0],
+        b[1],
+        b[2],
+        out.length_m,
+        n.nps.map_or(format!("DN {}", n.dn), |nps| format!(
+            "NPS {nps} / DN {}",
+            n.dn
+        )),
+        n.outside_diameter_mm,
+        n.difference_mm,
+        out.segments_found,
+        if out.segments_found == 1 { "" } else { "s" }
     );
     if let (Some(r), Some(a)) = (out.reference_radius_m, out.accuracy_m) {
         outln!(

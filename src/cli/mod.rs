@@ -226,7 +226,7 @@ fn exit_code_for(err: &anyhow::Error) -> ExitCode {
         e.is::<NothingFound>()
             || matches!(
                 e.downcast_ref::<CylinderError>(),
-                Some(CylinderError::NotFound { .. })
+                Some(CylinderError::NotFound { .. } | CylinderError::NoPipe { .. })
             )
             || e.downcast_ref::<ScaleError>()
                 .is_some_and(ScaleError::is_nothing_found)

@@ -139,6 +139,18 @@ pub enum CylinderError {
         /// Inliers required.
         required: usize,
     },
+    /// The pipe-network search found no pipe of interest (none at all, or none along the axis
+    /// hint).
+    #[error(
+        "no pipe found: {}; {refused} candidates refused as walls, boxes, narrow arcs or too short (`pipemeasure pipes` lists why)",
+        if *.segments == 0 { "no pipe segment".to_string() } else { format!("{} pipe segments, none along the axis hint", .segments) }
+    )]
+    NoPipe {
+        /// Pipe segments found (none of them along the hint).
+        segments: usize,
+        /// Candidates refused.
+        refused: usize,
+    },
     /// A configuration value is out of range.
     #[error("cylinder setting `{field}` is out of range: {value}")]
     Config {

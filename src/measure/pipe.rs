@@ -1,12 +1,14 @@
 //! Measuring the pipe (paper, "Evaluation of Impact of Calibration on Pipe Reconstruction"): the
 //! dense cloud brought to metres (and into the TLS frame when the targets give a similarity),
-//! the pipe of interest fitted, its radius σ combining the fit's and the scale's, and with a TLS
+//! the pipe of interest taken from the pipe network found there (issue 20: every pipe once,
+//! walls and boxes refused), its radius σ combining the fit's and the scale's, and with a TLS
 //! scan the same pipe fitted there as the reference.
 
 use nalgebra::Vector3;
 
 use super::cloud::Cloud;
-use super::cylinder::{CylinderConfig, CylinderError, CylinderFit, fit_cylinder_among};
+use super::cylinder::{Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_cylinder_among};
+use super::network::{Network, NetworkConfig, NetworkError, PipeSegment, extract_network};
 use super::scale::ScaleEstimate;
 use crate::adjust::Similarity;
 
@@ -91,6 +93,10 @@ pub struct PipeMeasurement {
     /// The transformed finite points the fit's inlier indices refer to (the region of interest
     /// applied).
     pub points: Vec<Vector3<f64>>,
+    /// The pipe network's segment measured: its axis endpoints, length and nominal size.
+    pub segment: PipeSegment,
+    /// How many pipe segments the search found, the measured one included.
+    pub segments_found: usize,
 }
 
 /// The reference radius from the TLS scan and the accuracy of the measurement.
@@ -117,11 +123,11 @@ pub fn transformed_points(
         .collect()
 }
 
-/// Scales (and moves) the cloud, then fits the pipe.
+/// Scales (and moves) the cloud, then measures the pipe of interest ([`pipe_of_interest`]).
 ///
 /// # Errors
 ///
-/// [`CylinderError`]: too few points, bad settings, or no cylinder.
+/// [`CylinderError`]: too few points, bad settings, or no pipe.
 pub fn measure_pipe(
     points: &[Vector3<f64>],
     scaling: &Scaling,
@@ -130,7 +136,15 @@ pub fn measure_pipe(
 ) -> Result<PipeMeasurement, CylinderError> {
     let transform = scaling.transform();
     let points = transformed_points(points, &transform, region);
-    let fit = fit_points(&points, config)?;
+    let network =
+        extract_network(&points, &network_config(region, config)).map_err(|e| match e {
+            NetworkError::Cloud(e) => CylinderError::Cloud(e),
+            NetworkError::Config(e) => e,
+        })?;
+    let segment = pipe_of_interest(&network, region, config.axis_hint)
+        .ok_or_else(|| no_pipe(&network))?
+        .clone();
+    let fit = segment_fit(&segment);
     let scale = scaling.scale();
     let r = fit.cylinder.radius;
     let radius_std = (fit.radius_std.powi(2) + (r * scale.1 / scale.0).powi(2)).sqrt();
@@ -140,7 +154,84 @@ pub fn measure_pipe(
         radius_std,
         transform,
         points,
+        segments_found: network.segments.len(),
+        segment,
     })
+}
+
+/// The network search of the main command: the pipe-network engine's rules with the user's
+/// radius range and axis hint; in a region of interest a segment need only be as long as the
+/// region's radius (the pipe is cut where the region ends), at most the engine's 0.3 m.
+#[must_use]
+pub fn network_config(region: Option<&Region>, config: &CylinderConfig) -> NetworkConfig {
+    let defaults = NetworkConfig::default();
+    NetworkConfig {
+        cylinder: config.clone(),
+        min_length_m: region.map_or(defaults.min_length_m, |r| {
+            defaults.min_length_m.min(r.radius)
+        }),
+        ..defaults
+    }
+}
+
+/// The pipe of interest among the network's segments: those within the axis hint's angle (when
+/// given); of them the one whose axis passes nearest the region's centre (`--near`), otherwise
+/// the one with the most inliers (the best-supported pipe, what a single robust fit finds).
+/// Ties keep the first segment. `None` when no segment qualifies.
+#[must_use]
+pub fn pipe_of_interest<'a>(
+    network: &'a Network,
+    region: Option<&Region>,
+    axis_hint: Option<(Vector3<f64>, f64)>,
+) -> Option<&'a PipeSegment> {
+    let along_hint = |g: &&PipeSegment| {
+        axis_hint.is_none_or(|(hint, angle)| {
+            let (_, d, _) = g.axis();
+            d.dot(&hint).abs() >= angle.cos() - 1e-12
+        })
+    };
+    let candidates = network.segments.iter().filter(along_hint);
+    match region {
+        Some(r) => candidates
+            .min_by(|a, b| axis_distance(a, &r.centre).total_cmp(&axis_distance(b, &r.centre))),
+        // `max_by_key` keeps the last of equals: reversed, the first.
+        None => candidates.rev().max_by_key(|g| g.inliers),
+    }
+}
+
+/// Distance from `p` to the segment's axis between its endpoints.
+#[must_use]
+pub fn axis_distance(segment: &PipeSegment, p: &Vector3<f64>) -> f64 {
+    let (a, d, l) = segment.axis();
+    let t = (p - a).dot(&d).clamp(0.0, l);
+    (p - (a + t * d)).norm()
+}
+
+/// The segment as a cylinder fit: its axis through its start, its radius, σ, RMSE and inliers
+/// (the engine re-fits each segment alone on its inliers; their RMSE stands for the noise
+/// scale).
+fn segment_fit(segment: &PipeSegment) -> CylinderFit {
+    let (point, direction, _) = segment.axis();
+    CylinderFit {
+        cylinder: Cylinder {
+            point,
+            direction,
+            radius: segment.radius_m,
+        },
+        radius_std: segment.radius_std_m,
+        rmse: segment.rmse_m,
+        inliers: segment.inliers,
+        noise_scale: segment.rmse_m,
+        inlier_indices: segment.inlier_indices.clone(),
+    }
+}
+
+/// No pipe of interest: [`CylinderError::NoPipe`] with what the search refused.
+fn no_pipe(network: &Network) -> CylinderError {
+    CylinderError::NoPipe {
+        segments: network.segments.len(),
+        refused: network.refused.len(),
+    }
 }
 
 /// Fits the best cylinder of finite points.
@@ -203,4 +294,124 @@ pub fn reference_fit(
         accuracy: r - fit.cylinder.radius,
         fit,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A 4-inch run along x (r 57.15 mm, x 0–2 m, 1 m up), a 2-inch riser beside it (r
+    /// 30.15 mm, at x 1, y 0.5, z 0.2–1.7 m), a floor and a 0.4 m box; 0.5 mm uniform noise.
+    fn room() -> Vec<Vector3<f64>> {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        let mut noise = || (rng.random::<f64>() - 0.5) * 1e-3 * 12f64.sqrt() * 0.5;
+        let mut points = Vec::new();
+        let mut tube = |r: f64, at: &dyn Fn(f64, f64, f64) -> Vector3<f64>, n: usize| {
+            for i in 0..n {
+                for k in 0..60 {
+                    let a = std::f64::consts::TAU * k as f64 / 60.0;
+                    points.push(at((i as f64 + 0.5) / n as f64, a, r + noise()));
+                }
+            }
+        };
+        tube(
+            0.05715,
+            &|t, a, r| Vector3::new(2.0 * t, r * a.cos(), 1.0 + r * a.sin()),
+            2000,
+        );
+        tube(
+            0.03015,
+            &|t, a, r| Vector3::new(1.0 + r * a.cos(), 0.5 + r * a.sin(), 0.2 + 1.5 * t),
+            1000,
+        );
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        let mut noise = || (rng.random::<f64>() - 0.5) * 1e-3 * 12f64.sqrt() * 0.5;
+        for i in 0..300 {
+            for j in 0..300 {
+                let (x, y) = (-0.5 + 3.0 * i as f64 / 300.0, -1.5 + 3.0 * j as f64 / 300.0);
+                points.push(Vector3::new(x, y, noise()));
+            }
+        }
+        for i in 0..80 {
+            for j in 0..80 {
+                let (u, v) = (0.4 * i as f64 / 80.0, 0.4 * j as f64 / 80.0);
+                let (x0, y0) = (2.2, -0.2);
+                for p in [
+                    Vector3::new(x0 + u, y0, v),
+                    Vector3::new(x0 + u, y0 + 0.4, v),
+                    Vector3::new(x0, y0 + u, v),
+                    Vector3::new(x0 + 0.4, y0 + u, v),
+                    Vector3::new(x0 + u, y0 + v, 0.4),
+                ] {
+                    points.push(p + Vector3::new(noise(), noise(), noise()));
+                }
+            }
+        }
+        points
+    }
+
+    fn show(g: &PipeSegment) -> String {
+        format!("r {} from {:?} to {:?}", g.radius_m, g.start, g.end)
+    }
+
+    fn measure(region: Option<Region>, hint: Option<Vector3<f64>>) -> PipeMeasurement {
+        let config = CylinderConfig {
+            axis_hint: hint.map(|h| (h, 20f64.to_radians())),
+            ..NetworkConfig::default().cylinder
+        };
+        measure_pipe(&room(), &Scaling::Given(1.0), region.as_ref(), &config).unwrap()
+    }
+
+    /// The pipe of interest (issue 20, the main command on the network engine): near a point,
+    /// the pipe whose axis passes nearest it; along a hint, the pipe along it; with neither,
+    /// the best-supported pipe. Each at its radius (0.3 mm) with its axis's ends (1 cm);
+    /// neither the floor nor the box is a pipe.
+    #[test]
+    fn the_pipe_of_interest_is_near_the_point_along_the_hint_or_the_best_supported() {
+        let riser = |m: &PipeMeasurement| {
+            let (a, b) = (Vector3::from(m.segment.start), Vector3::from(m.segment.end));
+            assert!(
+                (m.fit.cylinder.radius - 0.03015).abs() < 3e-4,
+                "{}",
+                show(&m.segment)
+            );
+            let (lo, hi) = if a.z < b.z { (a, b) } else { (b, a) };
+            assert!((lo - Vector3::new(1.0, 0.5, 0.2)).norm() < 0.01, "{lo}");
+            assert!((hi - Vector3::new(1.0, 0.5, 1.7)).norm() < 0.01, "{hi}");
+        };
+        let run = measure(None, None);
+        assert_eq!(run.segments_found, 2);
+        assert!(
+            (run.fit.cylinder.radius - 0.05715).abs() < 3e-4,
+            "{}",
+            show(&run.segment)
+        );
+        assert!(run.fit.cylinder.direction.x.abs() > 0.999);
+        assert_eq!(run.segment.nominal.nps, Some("4"));
+        riser(&measure(None, Some(Vector3::z())));
+        // Near the riser's middle, 0.5 m from the run's axis: the riser, whole.
+        let near = Region {
+            centre: Vector3::new(1.0, 0.45, 0.95),
+            radius: 0.8,
+        };
+        let m = measure(Some(near), None);
+        assert_eq!(m.segments_found, 2);
+        riser(&m);
+        assert_eq!(m.segment.nominal.nps, Some("2"));
+        // Nothing along y: no pipe, and the error says so.
+        let config = CylinderConfig {
+            axis_hint: Some((Vector3::y(), 20f64.to_radians())),
+            ..NetworkConfig::default().cylinder
+        };
+        let err = match measure_pipe(&room(), &Scaling::Given(1.0), None, &config) {
+            Ok(m) => panic!("a pipe along y: {}", show(&m.segment)),
+            Err(e) => e,
+        };
+        assert!(
+            matches!(err, CylinderError::NoPipe { segments: 0, .. }),
+            "{err}"
+        );
+    }
 }

@@ -961,6 +961,17 @@ pub struct SiteReport {
     pub inliers: usize,
     /// Axis.
     pub axis: AxisOut,
+    /// The measured segment's axis endpoints (where the pipe ends, turns or leaves the region
+    /// of interest).
+    pub segment_start: [f64; 3],
+    /// See `segment_start`.
+    pub segment_end: [f64; 3],
+    /// The segment's length (m).
+    pub length_m: f64,
+    /// The standard size closest to the measured outside diameter (steel tables).
+    pub nominal: super::NominalSize,
+    /// Pipe segments the search found, the measured one included.
+    pub segments_found: usize,
     /// `tls` when the cloud was moved into the TLS frame by the targets' similarity, `scaled`
     /// when only scaled.
     pub frame: &'static str,
@@ -1048,6 +1059,11 @@ fn report(
             point: c.point.into(),
             direction: c.direction.into(),
         },
+        segment_start: m.segment.start,
+        segment_end: m.segment.end,
+        length_m: m.segment.length_m,
+        nominal: m.segment.nominal.clone(),
+        segments_found: m.segments_found,
         frame: if scaling.in_tls_frame() {
             "tls"
         } else {
