@@ -22,6 +22,8 @@
 //! The radius of interest ([`CylinderConfig::radius_min`], `radius_max`) bounds what can be a
 //! pipe: a wall's gentle bow fits a cylinder of metres.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use nalgebra::Vector3;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -1384,11 +1386,20 @@ fn elbow_tangent(pts: &[EndPoint], radius: f64, tail: f64) -> Option<f64> {
         prefix.push(prefix[prefix.len() - 1] + (p[1] * p[1]).min(c2));
     }
     let straight_cost = prefix[surface.len()];
+    // The smallest cost found so far, as bits (non-negative doubles order as their bits): a
+    // cell whose partial sum passes it cannot be the minimum (the terms are non-negative), so
+    // its sum stops there. The minimum and its ties are never cut, so the grid's answer is the
+    // one the full sums give, on any thread count.
+    let best_bits = AtomicU64::new(f64::INFINITY.to_bits());
     let cost = |theta: f64, bend: f64, te: f64| -> f64 {
+        let bound = f64::from_bits(best_bits.load(Ordering::Relaxed));
         let (sin, cos) = theta.sin_cos();
         let from = surface.partition_point(|p| p[0] <= te);
         let mut sum = prefix[from];
         for p in &surface[from..] {
+            if sum > bound {
+                return f64::INFINITY;
+            }
             // w = q − C, C = te·axis + R·v; n = axis × v = (−sin θ, cos θ, 0).
             let (wx, wy, wz) = (p[2] - bend * cos, p[3] - bend * sin, p[0] - te);
             let h = -wx * sin + wy * cos;
@@ -1399,6 +1410,7 @@ fn elbow_tangent(pts: &[EndPoint], radius: f64, tail: f64) -> Option<f64> {
             let e = (a * a + h * h).sqrt() - radius;
             sum += (e * e).min(c2);
         }
+        best_bits.fetch_min(sum.to_bits(), Ordering::Relaxed);
         sum
     };
     let te_min = -tail;
