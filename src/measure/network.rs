@@ -1450,6 +1450,36 @@ fn elbow_tangent(pts: &[EndPoint], radius: f64, tail: f64) -> Option<f64> {
     (straight_cost - best > 25.0 * sigma2).then_some(te)
 }
 
+/// Test scenery shared by the network's and the pipe of interest's tests: a 3 × 3 m floor at
+/// z = 0 (x −0.5…2.5, y −1.5…1.5, `noise()` in z) and a 0.4 m box (its four sides and top, at
+/// x 2.2–2.6, y −0.2…0.2, `noise()` on every coordinate).
+#[cfg(test)]
+pub(crate) fn floor_and_box(noise: &mut dyn FnMut() -> f64) -> Vec<Vector3<f64>> {
+    let mut points = Vec::new();
+    for i in 0..300 {
+        for j in 0..300 {
+            let (x, y) = (-0.5 + 3.0 * i as f64 / 300.0, -1.5 + 3.0 * j as f64 / 300.0);
+            points.push(Vector3::new(x, y, noise()));
+        }
+    }
+    for i in 0..80 {
+        for j in 0..80 {
+            let (u, v) = (0.4 * i as f64 / 80.0, 0.4 * j as f64 / 80.0);
+            let (x0, y0) = (2.2, -0.2);
+            for p in [
+                Vector3::new(x0 + u, y0, v),
+                Vector3::new(x0 + u, y0 + 0.4, v),
+                Vector3::new(x0, y0 + u, v),
+                Vector3::new(x0 + 0.4, y0 + u, v),
+                Vector3::new(x0 + u, y0 + v, 0.4),
+            ] {
+                points.push(p + Vector3::new(noise(), noise(), noise()));
+            }
+        }
+    }
+    points
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1549,28 +1579,7 @@ mod tests {
                 points.push(Vector3::new(x, rr * a.cos(), 1.0 + rr * a.sin()));
             }
         }
-        for i in 0..300 {
-            for j in 0..300 {
-                let (x, y) = (-0.5 + 3.0 * i as f64 / 300.0, -1.5 + 3.0 * j as f64 / 300.0);
-                points.push(Vector3::new(x, y, noise()));
-            }
-        }
-        // The box: its four sides and top, 0.4 m, at x 2.2–2.6.
-        for i in 0..80 {
-            for j in 0..80 {
-                let (u, v) = (0.4 * i as f64 / 80.0, 0.4 * j as f64 / 80.0);
-                let (x0, y0) = (2.2, -0.2);
-                for p in [
-                    Vector3::new(x0 + u, y0, v),
-                    Vector3::new(x0 + u, y0 + 0.4, v),
-                    Vector3::new(x0, y0 + u, v),
-                    Vector3::new(x0 + 0.4, y0 + u, v),
-                    Vector3::new(x0 + u, y0 + v, 0.4),
-                ] {
-                    points.push(p + Vector3::new(noise(), noise(), noise()));
-                }
-            }
-        }
+        points.extend(floor_and_box(&mut noise));
         let network = extract_network(&points, &NetworkConfig::default()).unwrap();
         assert_eq!(network.segments.len(), 1, "{:#?}", network.refused);
         let s = &network.segments[0];

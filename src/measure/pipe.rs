@@ -328,27 +328,7 @@ mod tests {
         );
         let mut rng = ChaCha8Rng::seed_from_u64(12);
         let mut noise = || (rng.random::<f64>() - 0.5) * 1e-3 * 12f64.sqrt() * 0.5;
-        for i in 0..300 {
-            for j in 0..300 {
-                let (x, y) = (-0.5 + 3.0 * i as f64 / 300.0, -1.5 + 3.0 * j as f64 / 300.0);
-                points.push(Vector3::new(x, y, noise()));
-            }
-        }
-        for i in 0..80 {
-            for j in 0..80 {
-                let (u, v) = (0.4 * i as f64 / 80.0, 0.4 * j as f64 / 80.0);
-                let (x0, y0) = (2.2, -0.2);
-                for p in [
-                    Vector3::new(x0 + u, y0, v),
-                    Vector3::new(x0 + u, y0 + 0.4, v),
-                    Vector3::new(x0, y0 + u, v),
-                    Vector3::new(x0 + 0.4, y0 + u, v),
-                    Vector3::new(x0 + u, y0 + v, 0.4),
-                ] {
-                    points.push(p + Vector3::new(noise(), noise(), noise()));
-                }
-            }
-        }
+        points.extend(crate::measure::network::floor_and_box(&mut noise));
         points
     }
 
