@@ -138,6 +138,32 @@ fn extract_every_15th_frame_of(video: &str, dir: &Path, count: usize) {
     assert_eq!(std::fs::read_dir(dir).unwrap().count(), count);
 }
 
+/// The detector both video tests use: dark discs of semi-minor axis ≥ 2 px (the videos' dots
+/// go down to 2.4 px).
+fn video_dot_detector() -> pipemeasure::detect::Detector {
+    use pipemeasure::detect::{DetectConfig, Detector, DiscPolarity};
+    Detector::new(DetectConfig {
+        min_semi_minor_px: 2.0,
+        polarity: Some(DiscPolarity::Dark),
+        ..DetectConfig::default()
+    })
+    .unwrap()
+}
+
+/// The centres of the dots `detector` finds in the frame at `path`.
+fn dark_dot_centres(
+    detector: &mut pipemeasure::detect::Detector,
+    path: &Path,
+) -> Vec<nalgebra::Vector2<f64>> {
+    let frame = pipemeasure::io::frames::read_frame(path).unwrap();
+    detector
+        .detect(&frame)
+        .ellipses
+        .iter()
+        .map(|e| nalgebra::Vector2::new(e.cx, e.cy))
+        .collect()
+}
+
 /// Issue 18 acceptance on BoofCV's hand-held video of its hexagonal grid (every 15th frame: 35
 /// frames of 640×480 H.264; 336 dots, half of its 24 × 28 in `calibration_target.yaml`, as
 /// alternate rows are offset). Every frame shows the whole grid (checked by eye, and by the
@@ -150,28 +176,16 @@ fn extract_every_15th_frame_of(video: &str, dir: &Path, count: usize) {
 /// short chain whole, proposed its dot (`detect::contours`).
 #[test]
 fn boofcv_hexagonal_video_frames_show_all_336_dots() {
-    use pipemeasure::detect::{DetectConfig, Detector, DiscPolarity};
     if !common::program_available("ffmpeg", "-version", "apt-get install -y ffmpeg") {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
     extract_every_15th_frame_of("video_hexagonal", tmp.path(), 35);
-    let mut detector = Detector::new(DetectConfig {
-        min_semi_minor_px: 2.0,
-        polarity: Some(DiscPolarity::Dark),
-        ..DetectConfig::default()
-    })
-    .unwrap();
+    let mut detector = video_dot_detector();
     let mut short = Vec::new();
     for k in 1..=35 {
         let name = format!("frame_{k:04}.jpg");
-        let frame = pipemeasure::io::frames::read_frame(&tmp.path().join(&name)).unwrap();
-        let found: Vec<nalgebra::Vector2<f64>> = detector
-            .detect(&frame)
-            .ellipses
-            .iter()
-            .map(|e| nalgebra::Vector2::new(e.cx, e.cy))
-            .collect();
+        let found = dark_dot_centres(&mut detector, &tmp.path().join(&name));
         if found.len() != 336 {
             short.push(format!("{name}: {}", found.len()));
             continue;
@@ -224,7 +238,6 @@ fn boofcv_hexagonal_video_frames_show_all_336_dots() {
 /// a grid mapped from our own detections would not be an independent check.
 #[test]
 fn boofcv_video_frames_show_every_grid_dot_and_nothing_else() {
-    use pipemeasure::detect::{DetectConfig, Detector, DiscPolarity};
     if !common::program_available("ffmpeg", "-version", "apt-get install -y ffmpeg") {
         return;
     }
@@ -237,12 +250,7 @@ fn boofcv_video_frames_show_every_grid_dot_and_nothing_else() {
     assert_eq!(fixture["frames_extracted"], 42);
     let frames = fixture["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 39);
-    let mut detector = Detector::new(DetectConfig {
-        min_semi_minor_px: 2.0,
-        polarity: Some(DiscPolarity::Dark),
-        ..DetectConfig::default()
-    })
-    .unwrap();
+    let mut detector = video_dot_detector();
     let mut offsets = Vec::new();
     for f in frames {
         let name = f["frame"].as_str().unwrap();
@@ -271,13 +279,7 @@ fn boofcv_video_frames_show_every_grid_dot_and_nothing_else() {
                     .fold(f64::INFINITY, f64::min)
             })
             .collect();
-        let frame = pipemeasure::io::frames::read_frame(&tmp.path().join(name)).unwrap();
-        let found: Vec<nalgebra::Vector2<f64>> = detector
-            .detect(&frame)
-            .ellipses
-            .iter()
-            .map(|e| nalgebra::Vector2::new(e.cx, e.cy))
-            .collect();
+        let found = dark_dot_centres(&mut detector, &tmp.path().join(name));
         for (k, g) in grid.iter().enumerate() {
             let near: Vec<f64> = found
                 .iter()
