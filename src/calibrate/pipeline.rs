@@ -48,7 +48,8 @@ pub struct CalibrateConfig {
     pub adjust: AdjustConfig,
     /// Run Algorithm 1 step 4 (feature adjustment) before matching.
     pub feature_adjustment: bool,
-    /// Cap on matching/adjustment iterations.
+    /// Cap on matching/adjustment iterations, default 10 (simulated labs stop in 2–3; on real
+    /// video the matches change by a few views at the gate for longer).
     pub max_iterations: usize,
     /// Targets need this many corrected views to enter the adjustment.
     pub min_views: usize,
@@ -102,7 +103,7 @@ impl Default for CalibrateConfig {
                 ..AdjustConfig::default()
             },
             feature_adjustment: true,
-            max_iterations: 5,
+            max_iterations: 10,
             min_views: 3,
             min_frames: 10,
             min_targets: 20,
@@ -748,8 +749,11 @@ pub fn calibrate(
     }
     if !converged && stop_reason.is_empty() {
         stop_reason = format!(
-            "the matches still changed after {} iterations",
-            config.max_iterations
+            "the matches still changed after {} iterations{}",
+            config.max_iterations,
+            camera_moves(&iterations).map_or(String::new(), |(lo, hi)| format!(
+                " (the camera moved by {lo:.2}–{hi:.2} × its projection σ per iteration)"
+            ))
         );
         let msg = format!("{stop_reason}; the last adjustment is reported");
         log(&msg);
@@ -1051,6 +1055,19 @@ pub fn refresh_pairs(pairs: &mut [PairGeometry], cameras: &[FrameCamera]) {
             }
         }
     }
+}
+
+/// The least and the largest move of the camera between iterations, as a fraction of its
+/// projection σ (`None` before a second adjustment): what a loop that ran out of iterations
+/// still does (issue 18: a loop that does not settle reports how much the intrinsics move).
+fn camera_moves(iterations: &[LoopRecord]) -> Option<(f64, f64)> {
+    iterations
+        .iter()
+        .filter_map(|r| r.camera_change_ratio)
+        .fold(None, |acc, r| match acc {
+            None => Some((r, r)),
+            Some((lo, hi)) => Some((f64::min(lo, r), f64::max(hi, r))),
+        })
 }
 
 /// The matches as sorted lists of (frame, observation), for comparing iterations.
@@ -1366,6 +1383,34 @@ mod tests {
         };
         let (truth, _) = lab_geometry(&options, &lab).unwrap();
         truth_target_problem(&truth, 0.02, 3)
+    }
+
+    /// A loop that ran out of iterations reports the range of its camera's moves: the first
+    /// iteration has none, the others' ratios bound it.
+    #[test]
+    fn camera_moves_spans_the_iterations_after_the_first() {
+        let record = |iteration, ratio: Option<f64>| LoopRecord {
+            iteration,
+            tracks: 340,
+            views: 11_700,
+            changed: true,
+            adjusted_targets: 338,
+            adjusted_observations: 11_690,
+            sigma0: 0.113,
+            terms: vec![Term::C, Term::U0, Term::V0],
+            consolidation: crate::calibrate::tracks::Consolidation::default(),
+            camera_change_px: ratio.map(|r| 0.68 * r),
+            camera_change_ratio: ratio,
+            terms_held: false,
+        };
+        assert_eq!(camera_moves(&[record(1, None)]), None);
+        let loop_ = [
+            record(1, None),
+            record(2, Some(0.24)),
+            record(3, Some(0.54)),
+            record(4, Some(0.17)),
+        ];
+        assert_eq!(camera_moves(&loop_), Some((0.17, 0.54)));
     }
 
     /// The A, B, A pattern of selections is settled on the lower BIC of the two sets adjusted
