@@ -395,6 +395,166 @@ fn boofcv_hand_held_dot_grid_video_calibrates() {
     calibrates_from_the_video_itself(tmp.path(), &profile);
 }
 
+/// Issue 18 acceptance on BoofCV's hand-held video of its hexagonal grid (every 15th frame: 35
+/// frames, 336 dots), calibrated as a user would (`calibrate --frames DIR`, COLMAP run by
+/// calibrate).
+///
+/// * **One dot, one track**: the adjusted targets (`report.json`'s network), in their best-fit
+///   plane, hold each dot of the grid once: 336 targets with a neighbour at the grid's spacing,
+///   and no two targets within 0.3 of it (a dot split into two tracks); the issue allows 1 %
+///   (3 dots). Measured 2026-12-04: 336 on the grid, none split, 2 targets off it (the
+///   clipboard's pins), and `scripts/boofcv_detection_eval.py`'s lattice over the plane is
+///   exactly the 24 × 28 grid.
+/// * **The camera** against an independent calibration of the same camera: OpenCV 4.6's
+///   `calibrateCamera` with the grid's printed layout (equilateral, 1.2 apart) on BoofCV's
+///   hexagonal *stills* (six with the whole grid; k1, k2 as BoofCV's model; printed by
+///   `scripts/opencv_calibrate_pipemeasure_centres.py`): fx 691.6, fy 690.7, u0 326.39, v0
+///   248.61, k1 −0.2690, k2 0.1321 in our pixels. Within the issue's spread of BoofCV's two
+///   calibrations (5 px in c, 6 px in the principal point), and the radial displacement at the
+///   frame's corner within 3 px. BoofCV's published calibration (fx 702.5, u0 315.1) is 10–11
+///   px from both: it fits the stills' dots at RMS 0.309 px against OpenCV's 0.245 px, so it
+///   is no reference for this camera to a few pixels.
+/// * **The loop**: after the first iteration every iteration moves the camera by less than its
+///   projection σ over the frame (the matches change by a few views at the gate: 0.08–0.54 σ,
+///   converged at iteration 7 on 2026-12-04); whether it gets below the 0.1 σ that stops it
+///   within the 10 iterations depends on COLMAP's run, and the report says which.
+#[test]
+fn boofcv_hexagonal_video_calibrates_with_one_track_per_dot() {
+    if !common::program_available("ffmpeg", "-version", "apt-get install -y ffmpeg")
+        || !common::colmap_available()
+    {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let frames = tmp.path().join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    extract_every_15th_frame_of("video_hexagonal", &frames, 35);
+    let (code, stdout, stderr) = common::pipemeasure(
+        tmp.path(),
+        &[
+            "calibrate",
+            "--device",
+            "boofhex",
+            "--frames",
+            "frames",
+            "--min-semi-minor",
+            "3",
+            "--out",
+            "boofhex.json",
+            "--report",
+            "report",
+            "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}\n{stdout}");
+    let i = pipemeasure::profile::Profile::read(&tmp.path().join("boofhex.json"))
+        .unwrap()
+        .intrinsics;
+    eprintln!(
+        "c {:.2} u0 {:.2} v0 {:.2} k1 {:.4} k2 {:.4}",
+        i.c, i.u0, i.v0, i.k1, i.k2
+    );
+    // OpenCV's known-layout calibration of the hexagonal stills (our pixel origin).
+    let (fx, fy, u0, v0, k1, k2) = (691.6, 690.7, 326.39, 248.61, -0.2690, 0.1321);
+    let f = 0.5 * (fx + fy);
+    assert!((i.c - f).abs() < 5.0, "c {} against {f}", i.c);
+    assert!((i.u0 - u0).abs() < 6.0, "u0 {} against {u0}", i.u0);
+    assert!((i.v0 - v0).abs() < 6.0, "v0 {} against {v0}", i.v0);
+    let r2 = (320.0f64.powi(2) + 240.0f64.powi(2)) / (f * f);
+    let radial = |k1: f64, k2: f64| (k1 * r2 + k2 * r2 * r2) * r2.sqrt() * f;
+    let (ours, theirs) = (radial(i.k1, i.k2), radial(k1, k2));
+    assert!(
+        (ours - theirs).abs() < 3.0,
+        "corner displacement {ours} px against {theirs} px"
+    );
+
+    let report: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(tmp.path().join("report/report.json")).unwrap(),
+    )
+    .unwrap();
+    let xyz: Vec<nalgebra::Vector3<f64>> = report["network"]["targets"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| {
+            let p = t["xyz"].as_array().unwrap();
+            nalgebra::Vector3::new(
+                p[0].as_f64().unwrap(),
+                p[1].as_f64().unwrap(),
+                p[2].as_f64().unwrap(),
+            )
+        })
+        .collect();
+    let (on_grid, split) = grid_targets_and_splits(&xyz);
+    eprintln!(
+        "{} adjusted targets: {on_grid} on the grid, {split} pairs of them within 0.3 spacing",
+        xyz.len()
+    );
+    assert!(split <= 3, "{split} dots split into several tracks");
+    assert_eq!(on_grid - split, 336, "{on_grid} targets on the grid");
+
+    let iterations = report["iterations"].as_array().unwrap();
+    for it in iterations.iter().skip(1) {
+        if let Some(ratio) = it["camera_change_ratio"].as_f64() {
+            assert!(
+                ratio < 1.0,
+                "iteration {}: moved {ratio} σ",
+                it["iteration"]
+            );
+        }
+    }
+    eprintln!(
+        "{} iterations; converged: {}, {}",
+        iterations.len(),
+        report["converged"],
+        report["stop_reason"]
+    );
+    assert!(
+        report["stop_reason"]
+            .as_str()
+            .is_some_and(|s| !s.is_empty())
+    );
+}
+
+/// Of targets on a flat grid: how many lie on it (a neighbour within 1.5 × the grid's spacing,
+/// the median nearest-neighbour distance, in their best-fit plane) and how many pairs of those
+/// lie within 0.3 × the spacing of each other (one dot, two tracks).
+fn grid_targets_and_splits(xyz: &[nalgebra::Vector3<f64>]) -> (usize, usize) {
+    let n = xyz.len();
+    let mean = xyz.iter().sum::<nalgebra::Vector3<f64>>() / n as f64;
+    let scatter = xyz
+        .iter()
+        .map(|p| (p - mean) * (p - mean).transpose())
+        .sum::<nalgebra::Matrix3<f64>>();
+    let eig = scatter.symmetric_eigen();
+    let normal = eig.eigenvectors.column(eig.eigenvalues.imin()).into_owned();
+    let flat: Vec<nalgebra::Vector3<f64>> = xyz
+        .iter()
+        .map(|p| (p - mean) - normal * normal.dot(&(p - mean)))
+        .collect();
+    let distance = |i: usize, j: usize| (flat[i] - flat[j]).norm();
+    let nearest: Vec<f64> = (0..n)
+        .map(|i| {
+            (0..n)
+                .filter(|&j| j != i)
+                .map(|j| distance(i, j))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    let mut sorted = nearest.clone();
+    sorted.sort_by(f64::total_cmp);
+    let spacing = sorted[n / 2];
+    let on: Vec<usize> = (0..n).filter(|&i| nearest[i] < 1.5 * spacing).collect();
+    let split = on
+        .iter()
+        .enumerate()
+        .flat_map(|(a, &i)| on[a + 1..].iter().map(move |&j| (i, j)))
+        .filter(|&(i, j)| distance(i, j) < 0.3 * spacing)
+        .count();
+    (on.len(), split)
+}
+
 /// BoofCV's dot calibration of its hand-held video (`video_regular/intrinsic.yaml`: fx 702.55,
 /// fy 703.66, cx 314.61, cy 247.51, k1 −0.27349, k2 0.14570) in our model (c = fy,
 /// b1 = fx − fy; the pixel origin at the first pixel's corner: +0.5 px).
