@@ -637,11 +637,37 @@ pub fn estimate_readout_time(
     };
     let own = selected.problem.observations.len();
     let mut current = selected.problem.clone();
-    // Start from the neighbours' residuals at the selected model (its motions fit the frames
-    // alone): the weight's fixed point reached from 1 is the compromise where both groups fit
-    // equally badly, not the frames' precision.
-    let mut weight = (group_rms(&current, &current.observations)
-        / group_rms(&current, extra).max(f64::MIN_POSITIVE))
+    // The motions start from those selected (fit to the frames alone) or from rest, whichever
+    // predicts the neighbours better: within one frame a roll rate common to all frames trades
+    // with u0 and p2, and on BoofCV's real video the selected motions put the neighbours
+    // 10² to 10⁶ px off (RMS), where at rest they are off by the 9–10 px the hand moved. On
+    // the simulated video labs the start is unchanged (the 960 lab's figures to the last
+    // digit).
+    let at_rest = {
+        let mut p = current.clone();
+        p.local.fill(0.0);
+        p
+    };
+    let (moving, resting) = (group_rms(&current, extra), group_rms(&at_rest, extra));
+    if resting < moving {
+        log(&format!(
+            "neighbouring video frames: RMS {moving:.3} px at the selected motions, {resting:.3} px at rest: the motions start from rest"
+        ));
+        current = at_rest;
+    }
+    // Start from the neighbours' residuals at that start: the weight's fixed point reached
+    // from 1 is the compromise where both groups fit equally badly, not the frames'
+    // precision. Residuals beyond [`NEIGHBOUR_START_RMS_PX`] are the start's error, not the
+    // neighbours': they count as that RMS, so that the neighbours can correct the motions.
+    let (frames_start, neighbours_start) = (
+        group_rms(&current, &current.observations),
+        group_rms(&current, extra),
+    );
+    log(&format!(
+        "neighbouring video frames at the start: RMS {neighbours_start:.3} px against the frames' {frames_start:.4} px"
+    ));
+    let mut weight = (frames_start
+        / neighbours_start.clamp(f64::MIN_POSITIVE, NEIGHBOUR_START_RMS_PX))
     .powi(2)
     .min(1.0);
     let mut fitted = None;
@@ -776,6 +802,14 @@ fn group_rms(problem: &Problem<BrownModel>, observations: &[Observation]) -> f64
         .fold((0.0, 0usize), |(s, n), r| (s + r.norm_squared(), n + 1));
     (sum / (2 * n.max(1)) as f64).sqrt()
 }
+
+/// Largest RMS residual (px) of the neighbouring video frames that sets their first weight
+/// ([`estimate_readout_time`]). A first-order motion carried over `±1/fps` misses by the hand's
+/// tremor over that time, a fraction of a pixel on the simulated labs. On BoofCV's real video
+/// the motions selected from one frame's rows (where a roll rate common to all frames trades
+/// with u0 and p2) missed the neighbours by 10² to 10⁶ px, and at rest they miss by the 9–10 px
+/// the hand moved; weighted by that, the neighbours could not correct the motions.
+pub const NEIGHBOUR_START_RMS_PX: f64 = 1.0;
 
 /// Most adjustments of the neighbours' variance component ([`estimate_readout_time`]).
 pub const VARIANCE_COMPONENT_ITERATIONS: usize = 4;
