@@ -642,16 +642,20 @@ fn calibrates_from_the_video_itself(tmp: &Path, every: &pipemeasure::profile::Pr
         "against BoofCV's dot calibration after the best rotation: every 15th frame {:.2} px max ({:.2} RMS), --video {:.2} px max ({:.2} RMS); readout {:?}",
         d_every.map.max, d_every.map.rms, d_video.map.max, d_video.map.rms, video.rolling_shutter
     );
-    // Measured 2026-12-03: every 15th frame 5.2 px, --video 3.7 px (rolling shutter kept,
-    // readout 27.3 ms) or 7.4 px (the neighbours did not determine the readout time and the
-    // model was left out), depending on the frames chosen; BoofCV's own two calibrations
-    // differ by 2.0 px. The issue's "at least as well as every 15th frame" is not met in the
-    // second case (issue 19); this bound only guards against a camera gone wrong (a run-away
-    // loop moved it by hundreds of pixels).
+    // Issue 19's acceptance: `--video` agrees with BoofCV at least as well as every-15th-frame
+    // extraction. Measured 2026-12-04: every 15th frame 4.64–4.69 px, --video 3.21 px (the
+    // rolling shutter kept, readout 18.8 ± 4.8 ms). Before the neighbours' motions could start
+    // from rest (`calibrate::selection::estimate_readout_time`), the selected motions missed
+    // the neighbours by 10² to 10⁶ px, the rolling shutter was left out and --video gave
+    // 7.24–7.36 px on these frames.
     assert!(
-        d_video.map.max < 10.0,
+        d_video.map.max <= d_every.map.max,
         "--video {:.2} px, every 15th frame {:.2} px",
         d_video.map.max,
         d_every.map.max
+    );
+    assert!(
+        video.rolling_shutter.is_some(),
+        "the rolling shutter was left out"
     );
 }
