@@ -47,6 +47,26 @@ def extract(video, tmp):
     return sorted(pathlib.Path(tmp).glob("frame_*.jpg"))
 
 
+def grid_view(grid, rows, cols, dark):
+    """The 8x10 layout (2.5 apart) and, at each of OpenCV's grid positions, the one dark
+    detection within 0.3 of its spacing; None unless every position has exactly one."""
+    ours = []
+    for p, s in zip(grid, spacing(grid, rows, cols)):
+        near = np.flatnonzero(np.linalg.norm(dark - p, axis=1) < 0.3 * s)
+        if len(near) != 1:
+            return None
+        ours.append(dark[near[0]])
+    layout = np.zeros((rows * cols, 3), np.float32)
+    layout[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * 2.5
+    return layout, np.array(ours, np.float32).reshape(-1, 1, 2) - 0.5
+
+
+def collect(views):
+    """(objects, images) of the views that are not None."""
+    kept = [v for v in views if v is not None]
+    return [v[0] for v in kept], [v[1] for v in kept]
+
+
 def regular_views(binary):
     fixture = json.loads(FIXTURE.read_text())
     with tempfile.TemporaryDirectory() as tmp:
@@ -54,53 +74,15 @@ def regular_views(binary):
         frames = fixture["frames"]
         det = detect(binary, ["--min-semi-minor", "2", "--polarity", "dark"],
                      [pathlib.Path(tmp) / f["frame"] for f in frames])
-    objects, images = [], []
-    for f in frames:
-        rows, cols = f["rows"], f["cols"]
-        grid = np.array(f["centres"])
-        g = grid.reshape(rows, cols, 2)
-        space = min(np.linalg.norm(g[0, 1] - g[0, 0]), np.linalg.norm(g[1, 0] - g[0, 0]))
-        dark = det[f["frame"]][0]
-        ours = []
-        for p in grid:
-            d = np.linalg.norm(dark - p, axis=1)
-            near = np.flatnonzero(d < 0.3 * space)
-            if len(near) != 1:
-                break
-            ours.append(dark[near[0]])
-        if len(ours) != len(grid):
-            continue
-        layout = np.zeros((rows * cols, 3), np.float32)
-        layout[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * 2.5
-        objects.append(layout)
-        images.append(np.array(ours, np.float32).reshape(-1, 1, 2) - 0.5)
-    return objects, images
+    return collect(grid_view(np.array(f["centres"]), f["rows"], f["cols"], det[f["frame"]][0])
+                   for f in frames)
 
 
 def regular_still_views(binary):
     paths = sorted((DATA / "stills_regular").glob("*.jpg"))
     det = detect(binary, ["--min-semi-minor", "3", "--polarity", "dark"], paths)
-    objects, images = [], []
-    for path in paths:
-        ref = opencv_grid(path)
-        if ref is None:
-            continue
-        grid, rows, cols = ref
-        space = spacing(grid, rows, cols)
-        dark = det[path.name][0]
-        ours = []
-        for p, s in zip(grid, space):
-            near = np.flatnonzero(np.linalg.norm(dark - p, axis=1) < 0.3 * s)
-            if len(near) != 1:
-                break
-            ours.append(dark[near[0]])
-        if len(ours) != len(grid):
-            continue
-        layout = np.zeros((rows * cols, 3), np.float32)
-        layout[:, :2] = np.mgrid[0:cols, 0:rows].T.reshape(-1, 2) * 2.5
-        objects.append(layout)
-        images.append(np.array(ours, np.float32).reshape(-1, 1, 2) - 0.5)
-    return objects, images
+    refs = [(path, opencv_grid(path)) for path in paths]
+    return collect(grid_view(*ref, det[path.name][0]) for path, ref in refs if ref is not None)
 
 
 def hexagonal_views(binary, paths=None):
