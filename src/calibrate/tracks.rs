@@ -21,7 +21,8 @@
 //!    — a two-view track cannot be checked (two rays always have a closest point), and a
 //!    shorter track holding a view that fits a longer one is the ghost of a periodic pattern
 //!    (a point off the grid that lines up with one dot in some frames and its neighbour in
-//!    others) — and keeps what reprojects within the gate after Algorithm 3; a track left with
+//!    others) — and keeps what reprojects within the gate after Algorithm 3 (a joined track's
+//!    own views beyond the gate keep their excess, or it could never grow); a track left with
 //!    one view is gone;
 //! 3. merges again (growth removes the views that kept parts of one target apart), and grows
 //!    and merges until nothing is claimed (at most four rounds).
@@ -139,13 +140,36 @@ impl Context<'_> {
     /// Whether a view reprojects from `x` within the gate plus `allowance` (px): its fitted
     /// centre within them plus its eccentricity bound when Algorithm 3 did not correct it.
     fn fits_within(&self, v: &TrackView, x: &Point3<f64>, allowance: f64) -> bool {
+        self.excess(v, x) <= allowance
+    }
+
+    /// How far (px) a view lies beyond the gate from `x` (negative within it; infinite behind
+    /// the camera): its fitted centre's gate includes its eccentricity bound when Algorithm 3
+    /// did not correct it.
+    fn excess(&self, v: &TrackView, x: &Point3<f64>) -> f64 {
         let slack = if v.corrected.is_some() {
             0.0
         } else {
             self.bound(v.frame, v.obs)
         };
-        project(&self.cameras[v.frame], x)
-            .is_some_and(|uv| (uv - v.best_centre()).norm() <= self.gate + slack + allowance)
+        project(&self.cameras[v.frame], x).map_or(f64::INFINITY, |uv| {
+            (uv - v.best_centre()).norm() - self.gate - slack
+        })
+    }
+
+    /// The allowance growth gives a track's own views ([`grow`]): a view beyond the gate at
+    /// the track's point (a joined track's, [`Self::join_unambiguous`]) keeps its excess plus
+    /// [`GROWTH_SLACK`] of the gate, so that the track can still take the observations where
+    /// its point projects; views within the gate get none.
+    fn own_allowance(&self, track: &Track) -> std::collections::HashMap<(usize, usize), f64> {
+        track
+            .views
+            .iter()
+            .filter_map(|v| {
+                let e = self.excess(v, &track.point);
+                (e > 0.0).then_some(((v.frame, v.obs), e + GROWTH_SLACK * self.gate))
+            })
+            .collect()
     }
 
     /// Two tracks in disjoint frames whose points are unambiguously one target (each of three
@@ -476,6 +500,9 @@ fn grow(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> (usize, usize) {
             continue;
         }
         // Keep the claims that fit after Algorithm 3; drop the worst one at a time.
+        let own = ctx.own_allowance(&track);
+        let allowance =
+            |v: &TrackView, _: &Point3<f64>| own.get(&(v.frame, v.obs)).copied().unwrap_or(0.0);
         let mut grown_track = None;
         while !claims.is_empty() {
             let mut views = track.views.clone();
@@ -486,7 +513,7 @@ fn grow(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> (usize, usize) {
                 corrected: None,
                 partner: None,
             }));
-            if let Some(g) = ctx.solve(views, track.rejected.clone()) {
+            if let Some(g) = ctx.solve_with(views, track.rejected.clone(), &allowance) {
                 grown_track = Some(g);
                 break;
             }
@@ -547,6 +574,9 @@ fn grow(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> (usize, usize) {
 
 /// Rounds of growth and merging at most (each round's claims can free the next's).
 const GROWTH_ROUNDS: usize = 4;
+
+/// Growth's extra allowance for a track's own views beyond the gate, as a fraction of the gate.
+const GROWTH_SLACK: f64 = 0.25;
 
 /// Two tracks' points closer to each other than this fraction of their distance to any other
 /// track are one target ([`Context::join_unambiguous`]): two neighbouring targets of a grid
@@ -846,5 +876,60 @@ mod tests {
             let dot = truth.iter().position(|tv| tv.contains(&v[0])).unwrap();
             assert!(v.iter().all(|x| truth[dot].contains(x)), "dot {dot}: {v:?}");
         }
+    }
+
+    /// A track joined from unambiguous halves keeps views beyond the gate: it still grows by
+    /// the view of its dot that nobody holds (without its own views' allowance every growth
+    /// of such a track failed on its own views, and on BoofCV's hexagonal video the dots' free
+    /// views came and went between the loop's iterations, which never converged).
+    #[test]
+    fn a_joined_track_beyond_the_gate_still_grows() {
+        let (cameras, obs, truth) = grid_scene_shifted(&|f, d| {
+            if d == 7 && f % 2 == 1 {
+                (0.3, 0.0)
+            } else {
+                (0.0, 0.0)
+            }
+        });
+        let views = &truth[7];
+        let mut even: Vec<(usize, usize)> =
+            views.iter().copied().filter(|(f, _)| f % 2 == 0).collect();
+        let odd: Vec<(usize, usize)> = views.iter().copied().filter(|(f, _)| f % 2 == 1).collect();
+        let free = even.remove(even.len() / 2);
+        assert!(even.len() >= 3 && odd.len() >= 3);
+        let mut input = vec![track(&even, &cameras, &obs), track(&odd, &cameras, &obs)];
+        for (d, v) in truth.iter().enumerate() {
+            if d != 7 {
+                input.push(track(v, &cameras, &obs));
+            }
+        }
+        let pairs = PairIndex::new(&[]);
+        let (out, c) = consolidate(
+            input,
+            &cameras,
+            &obs,
+            &pairs,
+            (640, 480),
+            &MatchConfig::default(),
+        );
+        assert_eq!(out.len(), truth.len(), "{c:?}");
+        let dot7 = out
+            .iter()
+            .find(|t| t.views.iter().any(|v| (v.frame, v.obs) == odd[0]))
+            .unwrap();
+        let mut v: Vec<(usize, usize)> = dot7.views.iter().map(|v| (v.frame, v.obs)).collect();
+        v.sort_unstable();
+        assert!(v.iter().all(|x| views.contains(x)), "{v:?}");
+        // Joined with views beyond the gate, as the unambiguity rule allows.
+        let worst = dot7
+            .views
+            .iter()
+            .map(|v| (project(&cameras[v.frame], &dot7.point).unwrap() - v.best_centre()).norm())
+            .fold(0.0, f64::max);
+        assert!(worst > c.gate_px, "worst {worst} px, gate {} px", c.gate_px);
+        assert!(
+            v.contains(&free),
+            "the free view {free:?} not taken: {v:?} ({c:?})"
+        );
     }
 }
