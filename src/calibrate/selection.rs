@@ -661,7 +661,7 @@ pub fn estimate_readout_time(
     // neighbours': they count as that RMS, so that the neighbours can correct the motions.
     let (frames_start, neighbours_start) = (
         group_rms(&current, &current.observations),
-        group_rms(&current, extra),
+        moving.min(resting),
     );
     log(&format!(
         "neighbouring video frames at the start: RMS {neighbours_start:.3} px against the frames' {frames_start:.4} px"
