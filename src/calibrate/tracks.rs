@@ -825,23 +825,30 @@ mod tests {
         assert_eq!(sets, vec![a.clone(), b.clone()]);
     }
 
-    /// One dot seen with a systematic offset in half of the frames (as a frame's pose error,
-    /// rolling shutter or a biased edge would put it): the two halves' tracks are each
-    /// consistent, their joint track is not within the gate, but their points are far closer
-    /// to each other than to any other dot. They become one track of that dot, and nothing of
-    /// another dot's views enters it.
-    #[test]
-    fn unambiguous_halves_of_one_dot_beyond_the_gate_become_one_track() {
+    /// [`grid_scene`] with dot 7 moved by `shift` (px) in the odd frames, and the tracks a
+    /// matching would leave: dot 7 split into its even and its odd frames' tracks (`input[0]`,
+    /// `input[1]`), every other dot's whole track after them. With `leave_free`, the middle
+    /// even view of dot 7 is in no track and is returned as `free`.
+    struct HalvesOfDot7 {
+        scene: Scene,
+        odd: Vec<(usize, usize)>,
+        free: Option<(usize, usize)>,
+        input: Vec<Track>,
+    }
+
+    fn halves_of_dot_7(shift: (f64, f64), leave_free: bool) -> HalvesOfDot7 {
         let (cameras, obs, truth) = grid_scene_shifted(&|f, d| {
             if d == 7 && f % 2 == 1 {
-                (0.9, -0.6)
+                shift
             } else {
                 (0.0, 0.0)
             }
         });
         let views = &truth[7];
-        let even: Vec<(usize, usize)> = views.iter().copied().filter(|(f, _)| f % 2 == 0).collect();
+        let mut even: Vec<(usize, usize)> =
+            views.iter().copied().filter(|(f, _)| f % 2 == 0).collect();
         let odd: Vec<(usize, usize)> = views.iter().copied().filter(|(f, _)| f % 2 == 1).collect();
+        let free = leave_free.then(|| even.remove(even.len() / 2));
         assert!(even.len() >= 3 && odd.len() >= 3);
         let mut input = vec![track(&even, &cameras, &obs), track(&odd, &cameras, &obs)];
         for (d, v) in truth.iter().enumerate() {
@@ -849,6 +856,26 @@ mod tests {
                 input.push(track(v, &cameras, &obs));
             }
         }
+        HalvesOfDot7 {
+            scene: (cameras, obs, truth),
+            odd,
+            free,
+            input,
+        }
+    }
+
+    /// One dot seen with a systematic offset in half of the frames (as a frame's pose error,
+    /// rolling shutter or a biased edge would put it): the two halves' tracks are each
+    /// consistent, their joint track is not within the gate, but their points are far closer
+    /// to each other than to any other dot. They become one track of that dot, and nothing of
+    /// another dot's views enters it.
+    #[test]
+    fn unambiguous_halves_of_one_dot_beyond_the_gate_become_one_track() {
+        let HalvesOfDot7 {
+            scene: (cameras, obs, truth),
+            input,
+            ..
+        } = halves_of_dot_7((0.9, -0.6), false);
         let pairs = PairIndex::new(&[]);
         let config = MatchConfig::default();
         // Without the unambiguity rule the halves stay apart: their joint track does not fit.
@@ -884,25 +911,14 @@ mod tests {
     /// views came and went between the loop's iterations, which never converged).
     #[test]
     fn a_joined_track_beyond_the_gate_still_grows() {
-        let (cameras, obs, truth) = grid_scene_shifted(&|f, d| {
-            if d == 7 && f % 2 == 1 {
-                (0.3, 0.0)
-            } else {
-                (0.0, 0.0)
-            }
-        });
+        let HalvesOfDot7 {
+            scene: (cameras, obs, truth),
+            odd,
+            free,
+            input,
+        } = halves_of_dot_7((0.3, 0.0), true);
+        let free = free.unwrap();
         let views = &truth[7];
-        let mut even: Vec<(usize, usize)> =
-            views.iter().copied().filter(|(f, _)| f % 2 == 0).collect();
-        let odd: Vec<(usize, usize)> = views.iter().copied().filter(|(f, _)| f % 2 == 1).collect();
-        let free = even.remove(even.len() / 2);
-        assert!(even.len() >= 3 && odd.len() >= 3);
-        let mut input = vec![track(&even, &cameras, &obs), track(&odd, &cameras, &obs)];
-        for (d, v) in truth.iter().enumerate() {
-            if d != 7 {
-                input.push(track(v, &cameras, &obs));
-            }
-        }
         let pairs = PairIndex::new(&[]);
         let (out, c) = consolidate(
             input,
