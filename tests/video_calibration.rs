@@ -8,6 +8,7 @@ mod common;
 
 use common::pipemeasure;
 use pipemeasure::calibrate::checks::{projection_difference, projection_uncertainty};
+use pipemeasure::experiments::video_lab::{ShutterModel, run_video_lab};
 use pipemeasure::profile::Profile;
 use pipemeasure::sim::truth::Truth;
 
@@ -107,4 +108,20 @@ fn a_rolling_shutter_video_calibrates_to_the_true_camera_and_readout_time() {
     eprintln!("global shutter: camera vs truth {global_px:.4} px max, {global_ratio:.2} × its σ");
     assert!(global.rolling_shutter.is_none());
     assert!(global_px > 10.0 * max_px, "{global_px} vs {max_px}");
+
+    // `experiments --only video-labs` scores the same lab through the library: the same two
+    // calibrations as the command gives, to rounding.
+    let scored = run_video_lab(&lab, &|_| {}).unwrap();
+    assert_eq!(scored.true_readout_s, true_readout);
+    let [rs, gs] = scored.rows.as_slice() else {
+        panic!("{:?}", scored.rows)
+    };
+    assert_eq!(rs.model, ShutterModel::RollingShutter);
+    assert!((rs.camera_max_px - max_px).abs() < 1e-6, "{rs:?}");
+    assert!((rs.error_over_sigma_max - ratio).abs() < 1e-6, "{rs:?}");
+    let (t, s) = rs.readout_s.unwrap();
+    assert!((t - readout.readout_s).abs() < 1e-12 && (s - readout.readout_std_s).abs() < 1e-12);
+    assert_eq!(gs.model, ShutterModel::GlobalShutter);
+    assert!((gs.camera_max_px - global_px).abs() < 1e-6, "{gs:?}");
+    assert!(gs.readout_s.is_none());
 }

@@ -12,9 +12,16 @@
 //! pair is kept when the prediction lands within [`GATE_FRACTION`] of the target's own
 //! semi-minor axis and the two ellipses have about the same size ([`SIZE_TOLERANCE`]).
 
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
 use nalgebra::{Matrix3, Vector2, Vector3};
 
+use crate::calibrate::pipeline::NeighbourDetections;
+use crate::detect::{DetectConfig, DetectFilesError, detect_frame_files};
 use crate::geometry::conic::Ellipse;
+use crate::io::sidecar::{FramesSidecar, NeighbourEntry};
+use crate::io::{ReadError, ReadErrorKind};
 
 /// A pair is kept when the affine map predicts the neighbour's centre within this fraction of
 /// the detection's semi-minor axis: a neighbouring target is at least a diameter away.
@@ -137,6 +144,76 @@ fn fit_affine(pairs: &[(Vector2<f64>, Vector2<f64>)]) -> Option<nalgebra::Matrix
         m[(1, 1)],
         t.y,
     ))
+}
+
+/// The detections in the model frames' neighbours in the video, as `FRAMES/frames.json`
+/// (schema `pipemeasure.frames/1`, written by `calibrate --video` and `simulate --video
+/// --neighbours`) lists them: per name of `names` (the model's frames, in its order), each
+/// neighbour's time offset and detected ellipses. Empty when there is no sidecar or it lists
+/// no neighbour. The neighbours are frames of the same camera, checked against `size` before
+/// any is decoded; detection runs in parallel ([`detect_frame_files`]); `start` is told how
+/// many neighbour frames there are before the first is decoded, `progress` is called once per
+/// neighbour frame done.
+///
+/// # Errors
+///
+/// [`DetectFilesError`]: a bad sidecar (naming its field), a listed neighbour that is not in
+/// `frames`, or a neighbour frame that cannot be read or is of another size.
+pub fn detect_neighbours(
+    frames: &Path,
+    names: &[String],
+    size: (u32, u32),
+    config: &DetectConfig,
+    start: &dyn Fn(usize),
+    progress: &(dyn Fn() + Sync),
+) -> Result<Vec<Vec<NeighbourDetections>>, DetectFilesError> {
+    let path = frames.join("frames.json");
+    if !path.is_file() {
+        return Ok(Vec::new());
+    }
+    let sidecar = FramesSidecar::read(&path)?;
+    // Indexed once: a search per model image would be quadratic in a long sidecar.
+    let by_name: HashMap<&str, &[NeighbourEntry]> = sidecar
+        .frames
+        .iter()
+        .map(|f| (f.name.as_str(), f.neighbours.as_slice()))
+        .collect();
+    let lists: Vec<&[NeighbourEntry]> = names
+        .iter()
+        .map(|n| by_name.get(n.as_str()).copied().unwrap_or_default())
+        .collect();
+    let paths: Vec<PathBuf> = lists
+        .iter()
+        .flat_map(|l| l.iter().map(|n| frames.join(&n.name)))
+        .collect();
+    if paths.is_empty() {
+        return Ok(Vec::new());
+    }
+    if let Some(missing) = paths.iter().find(|p| !p.is_file()) {
+        return Err(ReadError::new(
+            &path,
+            ReadErrorKind::Invalid(format!(
+                "neighbour frame {} is not in {}",
+                missing.display(),
+                frames.display()
+            )),
+        )
+        .into());
+    }
+    start(paths.len());
+    let mut detected = detect_frame_files(&paths, size, config, progress)?.into_iter();
+    Ok(lists
+        .iter()
+        .map(|l| {
+            l.iter()
+                .zip(detected.by_ref())
+                .map(|(n, ellipses)| NeighbourDetections {
+                    dt_s: n.dt_s,
+                    ellipses,
+                })
+                .collect()
+        })
+        .collect())
 }
 
 #[cfg(test)]

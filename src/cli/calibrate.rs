@@ -14,11 +14,13 @@ use pipemeasure::calibrate::checks::{
     DistortionCheck, ImageMap, check_distortion, projection_difference,
     projection_difference_rotated, projection_uncertainty,
 };
+use pipemeasure::calibrate::neighbours::detect_neighbours;
 use pipemeasure::calibrate::network::colmap_network;
 use pipemeasure::calibrate::pipeline::{
     CalibrateConfig, Calibration, CalibrationInput, NeighbourDetections, ReadoutStart, calibrate,
 };
 use pipemeasure::camera::Term;
+use pipemeasure::detect::DetectConfig;
 use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
@@ -228,55 +230,25 @@ fn neighbour_detections(
     size: (u32, u32),
     quiet: bool,
 ) -> Result<Vec<Vec<NeighbourDetections>>> {
-    let path = args.frames().join("frames.json");
-    if !path.is_file()
-        || args.rolling_shutter == RollingShutterMode::Off
-        || args.readout_time.is_some()
-    {
+    if args.rolling_shutter == RollingShutterMode::Off || args.readout_time.is_some() {
         return Ok(Vec::new());
     }
-    let sidecar = pipemeasure::io::sidecar::FramesSidecar::read(&path)?;
-    // Indexed once: a search per model image would be quadratic in a long sidecar.
-    let by_name: std::collections::HashMap<&str, &[pipemeasure::io::sidecar::NeighbourEntry]> =
-        sidecar
-            .frames
-            .iter()
-            .map(|f| (f.name.as_str(), f.neighbours.as_slice()))
-            .collect();
-    let lists: Vec<&[pipemeasure::io::sidecar::NeighbourEntry]> = names
-        .iter()
-        .map(|n| by_name.get(n.as_str()).copied().unwrap_or_default())
-        .collect();
-    let flat: Vec<String> = lists
-        .iter()
-        .flat_map(|l| l.iter().map(|n| n.name.clone()))
-        .collect();
-    if flat.is_empty() {
-        return Ok(Vec::new());
-    }
-    if let Some(missing) = flat.iter().find(|n| !args.frames().join(n).is_file()) {
-        bail!(
-            "{}: neighbour frame {missing} is not in {}",
-            path.display(),
-            args.frames().display()
-        );
-    }
-    // The neighbours are frames of the same camera: the model's size, checked before decoding.
-    let mut detected = detect_named_frames(args.frames(), &flat, size, args.min_semi_minor, quiet)
-        .context("detecting the targets of the frames' neighbours")?
-        .into_iter();
-    Ok(lists
-        .iter()
-        .map(|l| {
-            l.iter()
-                .zip(detected.by_ref())
-                .map(|(n, ellipses)| NeighbourDetections {
-                    dt_s: n.dt_s,
-                    ellipses,
-                })
-                .collect()
-        })
-        .collect())
+    let config = DetectConfig {
+        min_semi_minor_px: args.min_semi_minor,
+        ..DetectConfig::default()
+    };
+    let progress = progress::bar(0, "detecting the neighbours", quiet);
+    let detected = detect_neighbours(
+        args.frames(),
+        names,
+        size,
+        &config,
+        &|n| progress.set_length(n as u64),
+        &|| progress.inc(1),
+    )
+    .context("detecting the targets of the frames' neighbours")?;
+    progress.finish_and_clear();
+    Ok(detected)
 }
 
 /// Every model image must be a file in the frames folder.

@@ -6,3 +6,4 @@ pub mod detection;
 pub mod eccentricity;
 pub mod matching;
 pub mod pipe;
+pub mod video_lab;
