@@ -34,12 +34,7 @@ fn main() -> anyhow::Result<()> {
         "projection σ: max {:.4} px, RMS {:.4} px; error / σ: max over the frame {:.2}",
         sigma.max,
         sigma.rms,
-        diff.values
-            .iter()
-            .flatten()
-            .zip(sigma.values.iter().flatten())
-            .map(|(d, s)| d / s.max(f64::MIN_POSITIVE))
-            .fold(0.0, f64::max)
+        diff.max_ratio_to(&sigma)
     );
     println!(
         "c {:.3} (true {:.3}), u0 {:.3} ({:.3}), v0 {:.3} ({:.3})",

@@ -18,14 +18,7 @@ fn against_truth(profile: &Profile, truth: &Truth) -> (f64, f64) {
     let size = (truth.camera.width, truth.camera.height);
     let diff = projection_difference(&profile.intrinsics, &truth.camera.intrinsics, size);
     let sigma = projection_uncertainty(&profile.intrinsics, &profile.covariance(), size);
-    let ratio = diff
-        .values
-        .iter()
-        .flatten()
-        .zip(sigma.values.iter().flatten())
-        .map(|(d, s)| d / s.max(f64::MIN_POSITIVE))
-        .fold(0.0, f64::max);
-    (diff.max, ratio)
+    (diff.max, diff.max_ratio_to(&sigma))
 }
 
 #[test]

@@ -120,6 +120,21 @@ fn map_from(cols: usize, rows: usize, flat: Vec<f64>) -> ImageMap {
     }
 }
 
+impl ImageMap {
+    /// The largest ratio of this map to `sigma` over their common cells: how many of its own
+    /// projection σ a camera's error against another reaches somewhere in the frame (issue
+    /// 19's honesty criterion asks at most 3). A zero σ counts as the smallest positive one.
+    #[must_use]
+    pub fn max_ratio_to(&self, sigma: &ImageMap) -> f64 {
+        self.values
+            .iter()
+            .flatten()
+            .zip(sigma.values.iter().flatten())
+            .map(|(d, s)| d / s.max(f64::MIN_POSITIVE))
+            .fold(0.0, f64::max)
+    }
+}
+
 /// σ (px, the larger principal axis of the 2×2 covariance) of the projected pixel of the ray
 /// through each grid cell, propagated from the intrinsics' 10×10 covariance (order of
 /// [`crate::camera::Term::ALL`]).
@@ -243,6 +258,16 @@ pub fn projection_difference_rotated(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The ratio is taken cell by cell, not of the two maps' maxima.
+    #[test]
+    fn the_largest_ratio_is_per_cell() {
+        let error = map_from(2, 2, vec![0.1, 0.4, 0.0, 0.2]);
+        let sigma = map_from(2, 2, vec![0.02, 0.4, 0.0, 0.1]);
+        // 0.1/0.02 = 5 beats 0.4/0.4 = 1 although 0.4 is the error's maximum; 0/0 counts 0.
+        assert!((error.max_ratio_to(&sigma) - 5.0).abs() < 1e-12);
+        assert_eq!(error.max / sigma.max, 1.0);
+    }
 
     #[test]
     fn a_moderate_model_passes_and_a_folding_one_fails() {

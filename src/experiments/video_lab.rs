@@ -196,13 +196,7 @@ fn score(model: ShutterModel, cal: &Calibration, truth: &Truth, seconds: f64) ->
     let diff = projection_difference(&cal.intrinsics, tru, size);
     let rotated = projection_difference_rotated(&cal.intrinsics, tru, size);
     let sigma = projection_uncertainty(&cal.intrinsics, &cal.covariance, size);
-    let error_over_sigma_max = diff
-        .values
-        .iter()
-        .flatten()
-        .zip(sigma.values.iter().flatten())
-        .map(|(d, s)| d / s.max(f64::MIN_POSITIVE))
-        .fold(0.0, f64::max);
+    let error_over_sigma_max = diff.max_ratio_to(&sigma);
     let mut terms: Vec<String> = cal.terms.iter().map(|t| t.name().to_string()).collect();
     if cal.rolling_shutter.is_some() {
         terms.push("motion".into());
