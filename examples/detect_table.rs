@@ -40,7 +40,7 @@ fn run(device: &str, width: u32, frames: usize, seed: u64, render: RenderConfig)
             ..Default::default()
         },
         detect: Default::default(),
-        min_semi_minor_px: 4.0,
+        min_semi_minor_px: pipemeasure::detect::MIN_SEMI_MINOR_TO_MEASURE_PX,
     };
     evaluate(&cfg).unwrap_or_else(|e| panic!("{e}"))
 }

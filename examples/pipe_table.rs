@@ -15,6 +15,7 @@
 
 use std::path::PathBuf;
 
+use pipemeasure::experiments::PresetRuns;
 use pipemeasure::experiments::pipe::{Table3Options, table3, table3_markdown};
 
 fn arg(name: &str) -> Option<String> {
@@ -33,17 +34,19 @@ fn parsed<T: std::str::FromStr>(name: &str, default: T) -> Result<T, String> {
 fn main() -> Result<(), String> {
     let defaults = Table3Options::default();
     let options = Table3Options {
-        devices: arg("--device").map_or(defaults.devices, |d| vec![d]),
-        width: parsed("--width", defaults.width)?,
-        frames: parsed("--frames", defaults.frames)?,
-        seed: parsed("--seed", defaults.seed)?,
+        runs: PresetRuns {
+            devices: arg("--device").map_or(defaults.runs.devices, |d| vec![d]),
+            width: parsed("--width", defaults.runs.width)?,
+            frames: parsed("--frames", defaults.runs.frames)?,
+            seed: parsed("--seed", defaults.runs.seed)?,
+        },
         video: std::env::args().any(|a| a == "--video"),
     };
     let tmp = tempfile::tempdir().map_err(|e| format!("temporary folder: {e}"))?;
     let out: PathBuf = arg("--out").map_or_else(|| tmp.path().to_path_buf(), PathBuf::from);
     let command = format!(
         "examples/pipe_table --width {} --frames {} --seed {}",
-        options.width, options.frames, options.seed
+        options.runs.width, options.runs.frames, options.runs.seed
     );
     let results = table3(&options, &out, &command, &|m| eprintln!("{m}"))?;
     println!("\n{}", table3_markdown(&results));

@@ -85,7 +85,7 @@ pub struct Args {
     #[arg(long)]
     cross_validate: bool,
     /// Smallest semi-minor axis of a target to use (px, at least 1).
-    #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px)]
+    #[arg(long, default_value_t = pipemeasure::detect::MIN_SEMI_MINOR_TO_MEASURE_PX, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
     /// Cap on matching/adjustment iterations (at least 1). Simulated labs stop in 2–3; real
     /// videos' matches change by a few views at the gate for longer (BoofCV's hexagonal video:

@@ -8,10 +8,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
+use pipemeasure::experiments::PresetRuns;
 use pipemeasure::experiments::eccentricity::{EccentricityResult, EccentricityScenario};
-use pipemeasure::experiments::matching::{Table2, Table2Options, table2};
+use pipemeasure::experiments::matching::{Table2, table2, table2_runs};
 use pipemeasure::experiments::pipe::{Table3Options, table3, table3_markdown};
-use pipemeasure::experiments::video_lab::{VideoLabOptions, video_labs, video_labs_markdown};
+use pipemeasure::experiments::video_lab::{video_lab_runs, video_labs, video_labs_markdown};
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::report::plots::line_chart;
 
@@ -51,29 +52,20 @@ pub struct Args {
 }
 
 /// The configurations: the paper's sizes, or the quick ones.
-fn configs(
-    args: &Args,
-) -> (
-    EccentricityScenario,
-    Table2Options,
-    Table3Options,
-    VideoLabOptions,
-) {
+fn configs(args: &Args) -> (EccentricityScenario, PresetRuns, Table3Options, PresetRuns) {
     let mut ecc = EccentricityScenario {
         seed: args.seed,
         ..EccentricityScenario::default()
     };
-    let mut t2 = Table2Options {
+    let mut t2 = PresetRuns {
         seed: args.seed,
-        ..Table2Options::default()
+        ..table2_runs()
     };
-    let mut t3 = Table3Options {
+    let mut t3 = Table3Options::default();
+    t3.runs.seed = args.seed;
+    let mut labs = PresetRuns {
         seed: args.seed,
-        ..Table3Options::default()
-    };
-    let mut labs = VideoLabOptions {
-        seed: args.seed,
-        ..VideoLabOptions::default()
+        ..video_lab_runs()
     };
     if args.quick {
         labs.width = 960;
@@ -81,8 +73,8 @@ fn configs(
         ecc.combinations = 10;
         t2.width = 1920;
         t2.frames = 30;
-        t3.width = 960;
-        t3.frames = 20;
+        t3.runs.width = 960;
+        t3.runs.frames = 20;
     }
     (ecc, t2, t3, labs)
 }
@@ -96,6 +88,23 @@ fn write(out: &Path, name: &str, text: &str) -> Result<()> {
 
 fn json(value: &impl serde::Serialize) -> Result<String> {
     Ok(serde_json::to_string_pretty(value)?)
+}
+
+/// Writes a table under `out`: `FILE.md`, its Markdown `section` and the command that produced
+/// it, and `FILE.json`, its `results`.
+fn write_table(
+    out: &Path,
+    file: &str,
+    section: &str,
+    command: &str,
+    results: &impl serde::Serialize,
+) -> Result<()> {
+    write(
+        out,
+        &format!("{file}.md"),
+        &format!("{section}\nProduced by `{command}`.\n"),
+    )?;
+    write(out, &format!("{file}.json"), &json(results)?)
 }
 
 /// Runs the experiments.
@@ -140,12 +149,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         log("== Table II: matching with Algorithm 2, robust triangulation and Algorithm 3");
         let t = table2(&t2, &|m| log(&format!("  {m}"))).map_err(anyhow::Error::msg)?;
         let section = table2_section(&t);
-        write(
-            out,
-            "table2.md",
-            &format!("{section}\nProduced by `{command}`.\n"),
-        )?;
-        write(out, "table2.json", &json(&t)?)?;
+        write_table(out, "table2", &section, &command, &t)?;
         outln!("{section}");
         index.push_str(&section);
     }
@@ -227,29 +231,24 @@ fn table3_section(
     let mut section = format!(
         "\n## {}\n\n{} sites ({} frames of {}x{}, seed {}{}), simulated into `{}/`.\n\n",
         s.heading,
-        options.devices.join(", "),
-        options.frames,
-        options.width,
-        options.width * 9 / 16,
-        options.seed,
+        options.runs.devices.join(", "),
+        options.runs.frames,
+        options.runs.width,
+        options.runs.width * 9 / 16,
+        options.runs.seed,
         s.conditions,
         s.sites,
     );
     section.push_str(&table3_markdown(&results));
     section.push_str(s.footer);
-    write(
-        out,
-        &format!("{}.md", s.file),
-        &format!("{section}\nProduced by `{command}`.\n"),
-    )?;
-    write(out, &format!("{}.json", s.file), &json(&results)?)?;
+    write_table(out, s.file, &section, command, &results)?;
     Ok(section)
 }
 
 /// Runs the video labs' calibration table, writes `video-labs.md` and `video-labs.json` under
 /// `out` and returns the markdown section.
 fn video_labs_section(
-    options: &VideoLabOptions,
+    options: &PresetRuns,
     out: &Path,
     command: &str,
     log: &dyn Fn(&str),
@@ -267,12 +266,7 @@ fn video_labs_section(
         options.seed,
     );
     section.push_str(&video_labs_markdown(&results));
-    write(
-        out,
-        "video-labs.md",
-        &format!("{section}\nProduced by `{command}`.\n"),
-    )?;
-    write(out, "video-labs.json", &json(&results)?)?;
+    write_table(out, "video-labs", &section, command, &results)?;
     Ok(section)
 }
 

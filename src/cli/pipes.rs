@@ -73,7 +73,7 @@ pub struct Args {
     #[arg(long, requires = "device")]
     tls_targets: Option<PathBuf>,
     /// With --device: smallest semi-minor axis of a target to use (px, at least 1).
-    #[arg(long, default_value_t = 4.0, value_parser = values::semi_minor_px, requires = "device")]
+    #[arg(long, default_value_t = pipemeasure::detect::MIN_SEMI_MINOR_TO_MEASURE_PX, value_parser = values::semi_minor_px, requires = "device")]
     min_semi_minor: f64,
 }
 

@@ -31,6 +31,12 @@ use serde::{Deserialize, Serialize};
 use self::image::GrayImage;
 use crate::geometry::conic::Ellipse;
 
+/// The smallest semi-minor axis (px) of a target used to measure (calibration, matching, the
+/// site's scale): the default of the commands' `--min-semi-minor` and of the experiments that
+/// stand for them. Smaller ellipses are still detected (down to
+/// [`DetectConfig::min_semi_minor_px`]) but their centres carry too little edge to trust.
+pub const MIN_SEMI_MINOR_TO_MEASURE_PX: f64 = 4.0;
+
 /// Detection options.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]

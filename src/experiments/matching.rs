@@ -25,11 +25,12 @@ use crate::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
 use crate::calibrate::views::{FrameCamera, TargetObservation, observations};
 use crate::geometry::conic::Ellipse;
 use crate::io::colmap::Reconstruction;
-use crate::sim::devices::PRESETS;
 use crate::sim::lab::LabConfig;
 use crate::sim::sfm::gaussian;
 use crate::sim::simulate::{SimulateOptions, lab_geometry};
 use crate::sim::truth::Truth;
+
+use super::PresetRuns;
 
 /// A matching scenario.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -52,7 +53,7 @@ impl Default for Scenario {
             options: SimulateOptions::default(),
             lab: LabConfig::default(),
             centre_noise_px: 0.01,
-            min_semi_minor_px: 4.0,
+            min_semi_minor_px: crate::detect::MIN_SEMI_MINOR_TO_MEASURE_PX,
             true_intrinsics: true,
         }
     }
@@ -335,29 +336,11 @@ pub fn centre_scores(
     s
 }
 
-/// Table II's runs: simulated labs per device preset, matched with each setting.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Table2Options {
-    /// Device presets.
-    pub devices: Vec<String>,
-    /// Frames per lab.
-    pub frames: usize,
-    /// Frame width (16:9).
-    pub width: u32,
-    /// Seed.
-    pub seed: u64,
-}
-
-impl Default for Table2Options {
-    /// The paper's 270 frames: 90 frames of 3840×2160 per preset.
-    fn default() -> Self {
-        Table2Options {
-            devices: PRESETS.iter().map(|p| p.name.to_string()).collect(),
-            frames: 90,
-            width: 3840,
-            seed: 1,
-        }
-    }
+/// Table II's runs as the paper made them: 90 frames of 3840×2160 of each device preset's lab
+/// (270 frames).
+#[must_use]
+pub fn table2_runs() -> PresetRuns {
+    PresetRuns::every_preset(3840, 90)
 }
 
 /// One setting on one device.
@@ -388,7 +371,7 @@ pub struct Table2Row {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Table2 {
     /// How it was run.
-    pub options: Table2Options,
+    pub options: PresetRuns,
     /// Frames and detections per device.
     pub detections: Vec<(String, usize, usize)>,
     /// The three settings.
@@ -432,7 +415,7 @@ pub fn table2_settings() -> [(&'static str, MatchConfig, f64); 3] {
 /// # Errors
 ///
 /// A message naming the device whose scenario failed.
-pub fn table2(options: &Table2Options, log: &dyn Fn(&str)) -> Result<Table2, String> {
+pub fn table2(options: &PresetRuns, log: &dyn Fn(&str)) -> Result<Table2, String> {
     let settings = table2_settings();
     let mut rows: Vec<Table2Row> = settings
         .iter()
@@ -446,13 +429,7 @@ pub fn table2(options: &Table2Options, log: &dyn Fn(&str)) -> Result<Table2, Str
     let mut detections = Vec::new();
     for device in &options.devices {
         let scenario = Scenario {
-            options: SimulateOptions {
-                device: device.clone(),
-                width: options.width,
-                height: options.width * 9 / 16,
-                seed: options.seed,
-                ..SimulateOptions::default()
-            },
+            options: options.simulate_options(device, ""),
             lab: LabConfig {
                 frames: options.frames,
                 ..LabConfig::default()

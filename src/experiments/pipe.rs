@@ -48,6 +48,8 @@ use crate::measure::{
 use crate::sim::dense::fuse_with;
 use crate::sim::truth::Truth;
 
+use super::PresetRuns;
+
 /// How the site's camera was obtained.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum Method {
@@ -350,14 +352,10 @@ pub fn run_site(
 /// Table III's runs: a simulated site per device preset, measured with both methods.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Table3Options {
-    /// Device presets (their profiles from `calibrations/`).
-    pub devices: Vec<String>,
-    /// Frame width (16:9).
-    pub width: u32,
-    /// Frames of each site video.
-    pub frames: usize,
-    /// Seed.
-    pub seed: u64,
+    /// The sites: device presets (their profiles from `calibrations/`), frame size, frames of
+    /// each site video, seed.
+    #[serde(flatten)]
+    pub runs: PresetRuns,
     /// Film each site as a hand-held video (rolling shutter, motion blur): the video variant.
     pub video: bool,
 }
@@ -365,13 +363,7 @@ pub struct Table3Options {
 impl Default for Table3Options {
     fn default() -> Self {
         Table3Options {
-            devices: crate::sim::devices::PRESETS
-                .iter()
-                .map(|p| p.name.to_string())
-                .collect(),
-            width: 1920,
-            frames: 60,
-            seed: 1,
+            runs: PresetRuns::every_preset(1920, 60),
             video: false,
         }
     }
@@ -392,20 +384,15 @@ pub fn table3(
 ) -> Result<Vec<SiteResult>, String> {
     use crate::sim::simulate::{SimulateOptions, SiteOptions, simulate_site};
     let mut results = Vec::new();
-    for device in &options.devices {
+    for device in &options.runs.devices {
         let (_, profile) =
             crate::profile::load_device(device).map_err(|e| format!("{device}: {e}"))?;
         let sim = SimulateOptions {
-            device: device.clone(),
-            width: options.width,
-            height: options.width * 9 / 16,
-            seed: options.seed,
-            command: command.to_string(),
             video: options.video.then(crate::sim::video::VideoConfig::default),
-            ..SimulateOptions::default()
+            ..options.runs.simulate_options(device, command)
         };
         let mut site = SiteOptions::default();
-        site.site.frames = options.frames;
+        site.site.frames = options.runs.frames;
         site.tls.offset = [500_000.0, 5_600_000.0, 100.0];
         let dir = out.join(format!("site_{device}"));
         log(&format!(

@@ -31,6 +31,8 @@ use crate::detect::{DetectConfig, detect_frame_files};
 use crate::io::colmap::Reconstruction;
 use crate::sim::truth::Truth;
 
+use super::PresetRuns;
+
 /// The camera model a video lab was calibrated with.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum ShutterModel {
@@ -94,31 +96,10 @@ pub struct VideoLabResult {
     pub rows: Vec<VideoLabRow>,
 }
 
-/// The video labs' runs.
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct VideoLabOptions {
-    /// Device presets.
-    pub devices: Vec<String>,
-    /// Frame width (16:9).
-    pub width: u32,
-    /// Extracted frames of each lab video.
-    pub frames: usize,
-    /// Seed.
-    pub seed: u64,
-}
-
-impl Default for VideoLabOptions {
-    fn default() -> Self {
-        VideoLabOptions {
-            devices: crate::sim::devices::PRESETS
-                .iter()
-                .map(|p| p.name.to_string())
-                .collect(),
-            width: 1920,
-            frames: 90,
-            seed: 1,
-        }
-    }
+/// The calibration table's labs: 90 frames of 1920×1080 of each device preset's lab.
+#[must_use]
+pub fn video_lab_runs() -> PresetRuns {
+    PresetRuns::every_preset(1920, 90)
 }
 
 /// Calibrates the video lab in `lab_dir` (`simulate lab --video --neighbours`'s folder) with
@@ -140,7 +121,7 @@ pub fn run_video_lab(lab_dir: &Path, log: &dyn Fn(&str)) -> Result<VideoLabResul
     let names: Vec<String> = model.images.values().map(|i| i.name.clone()).collect();
     let paths: Vec<PathBuf> = names.iter().map(|n| frames_dir.join(n)).collect();
     let detect = DetectConfig {
-        min_semi_minor_px: 4.0,
+        min_semi_minor_px: crate::detect::MIN_SEMI_MINOR_TO_MEASURE_PX,
         ..DetectConfig::default()
     };
     log(&format!("detecting targets in {} frames", paths.len()));
@@ -226,7 +207,7 @@ fn score(model: ShutterModel, cal: &Calibration, truth: &Truth, seconds: f64) ->
 ///
 /// A message naming the device and the step that failed.
 pub fn video_labs(
-    options: &VideoLabOptions,
+    options: &PresetRuns,
     out: &Path,
     command: &str,
     log: &dyn Fn(&str),
@@ -237,16 +218,11 @@ pub fn video_labs(
     let mut results = Vec::new();
     for device in &options.devices {
         let sim = SimulateOptions {
-            device: device.clone(),
-            width: options.width,
-            height: options.width * 9 / 16,
-            seed: options.seed,
-            command: command.to_string(),
             video: Some(VideoConfig {
                 neighbours: true,
                 ..VideoConfig::default()
             }),
-            ..SimulateOptions::default()
+            ..options.simulate_options(device, command)
         };
         let lab = LabConfig {
             frames: options.frames,
