@@ -6,7 +6,7 @@
 use nalgebra::{Matrix2x3, Vector2, Vector3};
 
 use crate::camera::Intrinsics;
-use crate::camera::rolling::{self, Motion, RowTiming};
+use crate::camera::rolling::{self, Motion, MotionOrder, RowTiming};
 
 /// Where [`CameraModel::project`] writes its Jacobians.
 #[derive(Debug)]
@@ -54,13 +54,18 @@ pub trait CameraModel: Sync {
 
 /// The `brown` model with the ten intrinsics of [`crate::camera::Term::ALL`] shared by every
 /// camera (one phone, one calibration); with a rolling shutter
-/// ([`crate::camera::rolling`]), also each camera's motion `(ω, ν)` (6 local values) and the
-/// shared readout time τ (the eleventh shared value, [`BrownModel::READOUT`]).
+/// ([`crate::camera::rolling`]), also each camera's motion (6 local values `(ω, ν)`, or up to
+/// 18 with accelerations and jerks when neighbouring video frames are measured,
+/// [`MotionOrder`]) and the shared readout time τ (the eleventh shared value,
+/// [`BrownModel::READOUT`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct BrownModel {
     /// The frames' height when they are read out row by row (rolling shutter); `None` for a
     /// global shutter.
     pub rolling_shutter: Option<RowHeight>,
+    /// With a rolling shutter: the order of each camera's motion (first within a frame;
+    /// higher for observations in neighbouring video frames `±1/fps` away).
+    pub motion_order: MotionOrder,
 }
 
 /// The frame height (px) that maps a row to its time for [`BrownModel`].
@@ -71,6 +76,7 @@ impl BrownModel {
     /// A global shutter: ten shared intrinsics, nothing per camera.
     pub const GLOBAL_SHUTTER: BrownModel = BrownModel {
         rolling_shutter: None,
+        motion_order: MotionOrder::First,
     };
     /// Index of the readout time among the shared values of a rolling-shutter model.
     pub const READOUT: usize = 10;
@@ -80,13 +86,26 @@ impl BrownModel {
     pub fn rolling_shutter(height_px: f64) -> Self {
         BrownModel {
             rolling_shutter: Some(RowHeight(height_px)),
+            motion_order: MotionOrder::First,
+        }
+    }
+
+    /// A rolling shutter on frames `height_px` rows high with motions of `order`.
+    #[must_use]
+    pub fn rolling_shutter_of_order(height_px: f64, order: MotionOrder) -> Self {
+        BrownModel {
+            motion_order: order,
+            ..Self::rolling_shutter(height_px)
         }
     }
 }
 
 impl CameraModel for BrownModel {
     fn local_len(&self) -> usize {
-        if self.rolling_shutter.is_some() { 6 } else { 0 }
+        match self.rolling_shutter {
+            None => 0,
+            Some(_) => self.motion_order.values(),
+        }
     }
 
     fn global_len(&self) -> usize {
@@ -149,9 +168,10 @@ impl CameraModel for BrownModel {
                     time_offset_s,
                 )?;
                 *j.d_p_cam = p.d_uv_d_p0;
+                let nl = self.local_len();
                 for r in 0..2 {
-                    for c in 0..6 {
-                        j.d_local[r * 6 + c] = p.d_uv_d_motion[(r, c)];
+                    for c in 0..nl {
+                        j.d_local[r * nl + c] = p.d_uv_d_motion[(r, c)];
                     }
                     for c in 0..10 {
                         j.d_global[r * 11 + c] = p.d_uv_d_intrinsics[(r, c)];
@@ -165,16 +185,21 @@ impl CameraModel for BrownModel {
 
     fn local_scale_direction(&self, local: &[f64], out: &mut [f64]) {
         out.fill(0.0);
-        if self.rolling_shutter.is_some() {
-            // ν is in world units per second: it scales with the world; ω does not.
-            out[3..6].copy_from_slice(&local[3..6]);
+        // ν, a and j are in world units (per second, s², s³): they scale with the world; the
+        // angular values do not.
+        for block in [3..6, 9..12, 15..18] {
+            if let (Some(o), Some(l)) = (out.get_mut(block.clone()), local.get(block)) {
+                o.copy_from_slice(l);
+            }
         }
     }
 
     fn scale_local(&self, local: &mut [f64], s: f64) {
-        if self.rolling_shutter.is_some() {
-            for v in &mut local[3..6] {
-                *v *= s;
+        for block in [3..6, 9..12, 15..18] {
+            if let Some(l) = local.get_mut(block) {
+                for v in l {
+                    *v *= s;
+                }
             }
         }
     }
@@ -345,23 +370,54 @@ mod tests {
         );
     }
 
-    /// Scaling the world by `s` scales `p_cam` and ν: the image stays the same.
+    /// The same with second- and third-order motions (ω, ν, α, a, ζ, j) per camera.
+    #[test]
+    fn higher_order_rolling_shutter_brown_jacobians_match_central_differences() {
+        let i = [
+            3000.0, 1930.0, 1075.0, 0.012, -0.009, 0.004, 1.6e-4, -2e-4, 0.3, -0.2, 0.025,
+        ];
+        for order in [MotionOrder::Second, MotionOrder::Third] {
+            check_jacobians(
+                &BrownModel::rolling_shutter_of_order(2160.0, order),
+                &HIGHER_ORDER_MOTION[..order.values()],
+                &i,
+                Vector3::new(0.3, -0.2, 1.7),
+            );
+        }
+    }
+
+    /// A hand-held motion to third order: velocities, accelerations, jerks.
+    const HIGHER_ORDER_MOTION: [f64; 18] = [
+        0.05, -0.12, 0.03, 0.08, -0.02, 0.11, 0.3, -0.2, 0.25, -0.4, 0.6, 0.2, 6.0, -4.0, 3.0,
+        -8.0, 5.0, 2.0,
+    ];
+
+    /// Scaling the world by `s` scales `p_cam`, ν, a and j: the image stays the same, in the
+    /// frame and in a neighbouring frame 1/25 s away.
     #[test]
     fn rolling_shutter_image_is_unchanged_by_a_scaled_world() {
-        let m = BrownModel::rolling_shutter(2160.0);
         let g = [
             3000.0, 1930.0, 1075.0, 0.012, -0.009, 0.004, 1.6e-4, -2e-4, 0.3, -0.2, 0.025,
         ];
-        let mut local = [0.05, -0.12, 0.03, 0.08, -0.02, 0.11];
-        let p = Vector3::new(0.3, -0.2, 1.7);
-        let before = m.project(&local, &g, &p, 0.04, None).unwrap();
-        let mut direction = [0.0; 6];
-        m.local_scale_direction(&local, &mut direction);
-        assert_eq!(direction[..3], [0.0; 3]);
-        assert_eq!(direction[3..], local[3..]);
-        m.scale_local(&mut local, 2.5);
-        let after = m.project(&local, &g, &(p * 2.5), 0.04, None).unwrap();
-        assert!((after - before).norm() < 1e-9, "{before} {after}");
+        for m in [
+            BrownModel::rolling_shutter(2160.0),
+            BrownModel::rolling_shutter_of_order(2160.0, MotionOrder::Second),
+            BrownModel::rolling_shutter_of_order(2160.0, MotionOrder::Third),
+        ] {
+            let n = m.local_len();
+            let mut local = HIGHER_ORDER_MOTION[..n].to_vec();
+            let p = Vector3::new(0.3, -0.2, 1.7);
+            let before = m.project(&local, &g, &p, 0.04, None).unwrap();
+            let mut direction = vec![0.0; n];
+            m.local_scale_direction(&local, &mut direction);
+            for (k, (d, l)) in direction.iter().zip(&local).enumerate() {
+                let world_units = (k / 3) % 2 == 1;
+                assert_eq!(*d, if world_units { *l } else { 0.0 }, "value {k}");
+            }
+            m.scale_local(&mut local, 2.5);
+            let after = m.project(&local, &g, &(p * 2.5), 0.04, None).unwrap();
+            assert!((after - before).norm() < 1e-9, "{before} {after}");
+        }
     }
 
     #[test]

@@ -6,6 +6,7 @@ use nalgebra::{Vector2, Vector3};
 
 use super::AdjustError;
 use super::model::CameraModel;
+use crate::camera::rolling::MotionOrder;
 use crate::geometry::pose::Rigid3;
 
 /// One image measurement of a point.
@@ -49,6 +50,23 @@ pub struct FixedParameters {
     pub local: Vec<usize>,
     /// Cameras whose pose is held fixed (empty for a free network).
     pub poses: Vec<usize>,
+    /// `(camera, index within its block)` of per-camera intrinsics held fixed for that camera
+    /// only (the higher-order motion of a frame without neighbouring video frames on both
+    /// sides).
+    pub camera_local: Vec<(usize, usize)>,
+}
+
+impl FixedParameters {
+    /// Indices (within its block) of camera `c`'s per-camera values held fixed: those held
+    /// for every camera, then its own (not deduplicated).
+    pub(crate) fn local_of(&self, c: usize) -> impl Iterator<Item = usize> + '_ {
+        self.local.iter().copied().chain(
+            self.camera_local
+                .iter()
+                .filter(move |(camera, _)| *camera == c)
+                .map(|&(_, k)| k),
+        )
+    }
 }
 
 /// A bundle adjustment problem over a camera model `M`.
@@ -103,6 +121,13 @@ impl<M: CameraModel> Problem<M> {
     pub fn validate(&self) -> Result<(), AdjustError> {
         let n_cam = self.cam_from_world.len();
         let invalid = |m: String| Err(AdjustError::Invalid(m));
+        if self.model.local_len() > super::solver::MAX_LOCAL {
+            return invalid(format!(
+                "the model has {} per-camera values, at most {} are supported",
+                self.model.local_len(),
+                super::solver::MAX_LOCAL
+            ));
+        }
         if self.local.len() != n_cam * self.model.local_len() {
             return invalid(format!(
                 "{} per-camera intrinsics for {n_cam} cameras of {} each",
@@ -151,6 +176,11 @@ impl<M: CameraModel> Problem<M> {
         }
         let fixed_ok = self.fixed.global.iter().all(|&k| k < self.global.len())
             && self.fixed.local.iter().all(|&k| k < self.model.local_len())
+            && self
+                .fixed
+                .camera_local
+                .iter()
+                .all(|&(c, k)| c < n_cam && k < self.model.local_len())
             && self.fixed.poses.iter().all(|&k| k < n_cam);
         if !fixed_ok {
             return invalid("a fixed-parameter index is out of range".into());
@@ -194,14 +224,19 @@ impl<M: CameraModel> Problem<M> {
         let mut fixed_poses = self.fixed.poses.clone();
         fixed_poses.sort_unstable();
         fixed_poses.dedup();
-        let mut fl = self.fixed.local.clone();
-        fl.sort_unstable();
-        fl.dedup();
+        let fixed_local: usize = (0..n_cam)
+            .map(|c| {
+                let mut fl: Vec<usize> = self.fixed.local_of(c).collect();
+                fl.sort_unstable();
+                fl.dedup();
+                fl.len()
+            })
+            .sum();
         let mut fg = self.fixed.global.clone();
         fg.sort_unstable();
         fg.dedup();
         6 * (n_cam - fixed_poses.len())
-            + n_cam * (self.model.local_len() - fl.len())
+            + (n_cam * self.model.local_len() - fixed_local)
             + (self.global.len() - fg.len())
             + 3 * self.points.len()
     }
@@ -221,6 +256,7 @@ impl Problem<super::BrownModel> {
             p.global.truncate(10);
             p.global.push(readout_s);
             p.fixed.local.clear();
+            p.fixed.camera_local.clear();
         } else {
             p.global[super::BrownModel::READOUT] = readout_s;
         }
@@ -236,7 +272,111 @@ impl Problem<super::BrownModel> {
         p.local.clear();
         p.global.truncate(10);
         p.fixed.local.clear();
+        p.fixed.camera_local.clear();
         p.fixed.global.retain(|&k| k < 10);
         p
+    }
+
+    /// The same rolling-shutter problem with motions of `order`: each camera's higher-order
+    /// values appended at zero after its first-order `(ω, ν)`, and held fixed for the cameras
+    /// not in `free` (a frame's accelerations and jerks show only in neighbouring video frames
+    /// on both sides of it). A global shutter, or a problem already of a higher order:
+    /// unchanged.
+    #[must_use]
+    pub fn with_motion_order(&self, order: MotionOrder, free: &[bool]) -> Self {
+        let first = MotionOrder::First.values();
+        let Some(super::model::RowHeight(height_px)) = self.model.rolling_shutter else {
+            return self.clone();
+        };
+        if self.model.motion_order != MotionOrder::First || order == MotionOrder::First {
+            return self.clone();
+        }
+        let mut p = self.clone();
+        p.model = super::BrownModel::rolling_shutter_of_order(height_px, order);
+        let extra = order.values() - first;
+        p.local = self
+            .local
+            .chunks(first)
+            .flat_map(|m| m.iter().copied().chain(std::iter::repeat_n(0.0, extra)))
+            .collect();
+        for c in 0..self.num_cameras() {
+            if !free.get(c).copied().unwrap_or(false) {
+                p.fixed
+                    .camera_local
+                    .extend((first..order.values()).map(|k| (c, k)));
+            }
+        }
+        p
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::adjust::BrownModel;
+
+    /// Two rolling-shutter cameras with first-order motions, three points.
+    fn two_moving_cameras() -> Problem<BrownModel> {
+        let intrinsics = [
+            1500.0, 960.0, 540.0, 0.01, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.02,
+        ];
+        let points = vec![
+            Vector3::new(0.0, 0.0, 2.0),
+            Vector3::new(0.3, -0.2, 2.5),
+            Vector3::new(-0.4, 0.1, 3.0),
+        ];
+        let observations = (0..2)
+            .flat_map(|c| (0..3).map(move |p| Observation::new(c, p, Vector2::new(960.0, 540.0))))
+            .collect();
+        Problem::new(
+            BrownModel::rolling_shutter(1080.0),
+            vec![Rigid3::identity(); 2],
+            vec![
+                0.1, -0.2, 0.3, 0.01, 0.02, 0.03, 0.4, -0.5, 0.6, 0.04, 0.05, 0.06,
+            ],
+            intrinsics.to_vec(),
+            points,
+            observations,
+        )
+        .unwrap()
+    }
+
+    /// A third-order motion keeps each camera's first-order values, starts its accelerations
+    /// and jerks at zero, and holds them for the camera not free: 12 fewer unknowns for it.
+    #[test]
+    fn higher_order_motions_are_appended_at_zero_and_held_where_not_free() {
+        let first = two_moving_cameras();
+        let third = first.with_motion_order(MotionOrder::Third, &[true, false]);
+        third.validate().unwrap();
+        assert_eq!(third.model.motion_order, MotionOrder::Third);
+        assert_eq!(third.local_of(0)[..6], first.local_of(0)[..]);
+        assert_eq!(third.local_of(1)[..6], first.local_of(1)[..]);
+        assert!(
+            third.local_of(0)[6..]
+                .iter()
+                .chain(&third.local_of(1)[6..])
+                .all(|&v| v == 0.0)
+        );
+        let held: Vec<usize> = third.fixed.local_of(1).collect();
+        assert_eq!(held, (6..18).collect::<Vec<_>>());
+        assert_eq!(third.fixed.local_of(0).count(), 0);
+        assert_eq!(
+            third.num_free_parameters(),
+            first.num_free_parameters() + 2 * 12 - 12
+        );
+        // A second call, or a global shutter, leaves the problem as it is.
+        assert_eq!(
+            third
+                .with_motion_order(MotionOrder::Second, &[true, true])
+                .local,
+            third.local
+        );
+        let still = first.without_rolling_shutter();
+        assert_eq!(
+            still
+                .with_motion_order(MotionOrder::Third, &[true, true])
+                .local,
+            still.local
+        );
     }
 }

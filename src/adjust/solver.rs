@@ -33,6 +33,11 @@ use crate::geometry::pose::{Rigid3, retract, skew};
 const CHUNK: usize = 512;
 /// Ceres' `min_lm_diagonal` and `max_lm_diagonal`.
 const MIN_DIAGONAL: f64 = 1e-6;
+
+/// Most per-camera values a model may carry (a third-order rolling-shutter motion's 18):
+/// the linearisation's stack buffers are this long; `Problem::validate`
+/// refuses a model with more.
+pub(crate) const MAX_LOCAL: usize = 18;
 const MAX_DIAGONAL: f64 = 1e32;
 /// Ceres' `min_relative_decrease`.
 const MIN_RELATIVE_DECREASE: f64 = 1e-3;
@@ -166,7 +171,7 @@ pub(crate) fn linearise<M: CameraModel>(
     let p_cam = r_x + pose.translation.vector;
     let mut d_p_cam = Matrix2x3::zeros();
     let (head, tail) = rec.split_at_mut(8 + 2 * dims.dc);
-    let mut d_local = [0.0; 32];
+    let mut d_local = [0.0; 2 * MAX_LOCAL];
     let d_local = &mut d_local[..2 * dims.nl];
     let Some(uv) = p.model.project(
         p.local_of(obs.camera),
@@ -368,7 +373,7 @@ pub(crate) fn pinned_indices<M: CameraModel>(p: &Problem<M>, dims: Dims) -> Vec<
         if p.fixed.poses.contains(&c) {
             out.extend(base..base + 6);
         }
-        out.extend(p.fixed.local.iter().map(|&k| base + 6 + k));
+        out.extend(p.fixed.local_of(c).map(|k| base + 6 + k));
     }
     out.sort_unstable();
     out.dedup();
@@ -453,7 +458,7 @@ fn assemble_reduced(
                     lambda * u[a * dc + a].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
                 rhs[a] = -nrm.bc[c * dc + a];
             }
-            let mut y = [0.0; 3 * 32];
+            let mut y = [0.0; 3 * (6 + MAX_LOCAL)];
             let y = &mut y[..dc * 3];
             for &o in inc.of_camera(c) {
                 let p = inc.point_of[o];

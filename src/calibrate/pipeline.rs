@@ -880,7 +880,11 @@ fn finish(
             readout_s: p.global[BrownModel::READOUT],
             readout_std_s: selected.readout_std_s.unwrap_or(0.0),
             estimated: setup.estimate_readout,
-            motions: p.local.chunks(6).map(Motion::from_slice).collect(),
+            motions: p
+                .local
+                .chunks(crate::adjust::CameraModel::local_len(&p.model).max(1))
+                .map(Motion::from_slice)
+                .collect(),
         });
     let observations: Vec<CalibrationObservation> = p
         .observations

@@ -27,6 +27,7 @@ use crate::adjust::{
     Problem, bundle_adjust, precision,
 };
 use crate::camera::Term;
+use crate::camera::rolling::MotionOrder;
 
 /// One candidate of the selection.
 #[derive(Clone, Debug, PartialEq)]
@@ -613,9 +614,14 @@ fn try_rolling_shutter(
 /// and trades with u0 and p2 (`u0 ↔ yaw + p2 + ω_z`), a pan rate and a tilt rate with b2 and
 /// b1. The terms stay those selected.
 ///
-/// A frame's motion is first order about its time, which hand tremor (4–12 Hz) bends over
-/// `±1/fps` far more than over the readout: the neighbours' residuals are larger than the
-/// frames'. Their weight is set by a variance-component estimate (Förstner 1979, simplified
+/// Over `±1/fps` a hand-held motion is not of constant velocity: its acceleration turns a
+/// frame by about a pixel and its jerk makes the neighbours' central difference 1–2 % faster
+/// than the velocity the rows see (measured on the simulator's truth,
+/// `scripts/neighbour_velocity.py`). The frames' motions are therefore taken to third order
+/// here ([`NEIGHBOUR_MOTION_ORDER`]; each neighbour's own rows show its own velocity, which
+/// separates the jerk from the velocity), for the frames seen from both sides. What is left
+/// (hand tremor at 4–12 Hz beyond third order over `±1/fps`) keeps the neighbours' residuals
+/// larger than the frames'. Their weight is set by a variance-component estimate (Förstner 1979, simplified
 /// to the groups' RMS residuals), `w = (RMS of the frames / RMS of the neighbours)²`, iterated
 /// until it changes by less than 10 % (at most [`VARIANCE_COMPONENT_ITERATIONS`] times), so
 /// that σ0 and the covariance stay those of the frames' observations.
@@ -636,7 +642,15 @@ pub fn estimate_readout_time(
         ));
     };
     let own = selected.problem.observations.len();
-    let mut current = selected.problem.clone();
+    // Higher-order motions: over ±1/fps the hand's acceleration turns a frame by about a pixel
+    // (the first-order motion left the neighbours 0.9 px RMS off on the 1920 video labs,
+    // against the frames' 0.015 px), and its jerk makes the neighbours' central difference
+    // 1–2 % faster than the velocity the rows see; both free for the frames with neighbours
+    // on both sides.
+    let free = frames_with_neighbours_on_both_sides(selected.problem.num_cameras(), extra);
+    let mut current = selected
+        .problem
+        .with_motion_order(NEIGHBOUR_MOTION_ORDER, &free);
     // The motions start from those selected (fit to the frames alone) or from rest, whichever
     // predicts the neighbours better: within one frame a roll rate common to all frames trades
     // with u0 and p2, and on BoofCV's real video the selected motions put the neighbours
@@ -682,7 +696,7 @@ pub fn estimate_readout_time(
             current.points.clone(),
             observations,
         )?;
-        problem.fixed = selected.problem.fixed.clone();
+        problem.fixed = current.fixed.clone();
         let fit_now = fit(problem, &selected.terms, true, adjust)?;
         let (frames_rms, neighbours_rms) = (
             group_rms(&fit_now.problem, &fit_now.problem.observations[..own]),
@@ -717,7 +731,7 @@ pub fn estimate_readout_time(
         log,
     );
     // The neighbours' errors are mostly one motion error per neighbour frame (tremor bends
-    // the first-order motion over 1/fps), not independent per target: the adjustment's σ of
+    // the motion over 1/fps beyond its third order), not independent per target: the adjustment's σ of
     // the readout time, which assumes independence, is scaled by the design effect of those
     // clusters (Kish 1965: 1 + (m̄ − 1)·ρ, with the regressor taken as fully correlated
     // within a frame, which is conservative).
@@ -742,6 +756,36 @@ pub fn estimate_readout_time(
         neighbour_weight: Some(weight),
         ..selected
     })
+}
+
+/// The order of the frames' motions once their neighbours in the video are measured.
+pub const NEIGHBOUR_MOTION_ORDER: MotionOrder = MotionOrder::Third;
+
+/// Neighbour observations a frame needs on each side (before and after it) for its
+/// higher-order motion to be adjusted: seen as the curvature of its path through the three
+/// times and the rows of the neighbours.
+pub const MIN_NEIGHBOUR_OBSERVATIONS_PER_SIDE: usize = 4;
+
+/// Per camera of `n_cameras`, whether the neighbour observations `extra` see it from both
+/// sides, at least [`MIN_NEIGHBOUR_OBSERVATIONS_PER_SIDE`] on each.
+fn frames_with_neighbours_on_both_sides(n_cameras: usize, extra: &[Observation]) -> Vec<bool> {
+    let mut counts = vec![(0usize, 0usize); n_cameras];
+    for o in extra {
+        if let Some(c) = counts.get_mut(o.camera) {
+            if o.time_offset_s < 0.0 {
+                c.0 += 1;
+            } else if o.time_offset_s > 0.0 {
+                c.1 += 1;
+            }
+        }
+    }
+    counts
+        .into_iter()
+        .map(|(before, after)| {
+            before >= MIN_NEIGHBOUR_OBSERVATIONS_PER_SIDE
+                && after >= MIN_NEIGHBOUR_OBSERVATIONS_PER_SIDE
+        })
+        .collect()
 }
 
 /// The design effect `1 + (m̄ − 1)·ρ` of the neighbour observations (`time_offset_s ≠ 0`)
@@ -891,6 +935,29 @@ fn names_list(terms: &[Term], separator: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A frame's higher-order motion is free only with enough neighbour observations before
+    /// and after it.
+    #[test]
+    fn higher_order_motion_needs_neighbours_on_both_sides() {
+        let at = |camera: usize, offset: f64| Observation {
+            time_offset_s: offset,
+            ..Observation::new(camera, 0, Vector2::zeros())
+        };
+        let n = MIN_NEIGHBOUR_OBSERVATIONS_PER_SIDE;
+        let mut extra = Vec::new();
+        // Camera 0: n before and n after; camera 1: n after only; camera 2: n − 1 before.
+        extra.extend((0..n).flat_map(|_| [at(0, -0.04), at(0, 0.04), at(1, 0.04)]));
+        extra.extend((0..n).map(|_| at(2, 0.04)));
+        extra.extend((1..n).map(|_| at(2, -0.04)));
+        // Own-frame observations and an unknown camera count for nothing.
+        extra.extend((0..n).map(|_| at(1, 0.0)));
+        extra.push(at(7, -0.04));
+        assert_eq!(
+            frames_with_neighbours_on_both_sides(3, &extra),
+            vec![true, false, false]
+        );
+    }
     use rand::{Rng, SeedableRng};
 
     #[test]

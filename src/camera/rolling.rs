@@ -9,8 +9,15 @@
 //!   pose is adjusted (`0`, or `±1/fps` for a neighbouring video frame); the middle row is at
 //!   the frame time.
 //! * Motion: a static point at `p₀` in the camera frame at the frame time is, `s` seconds
-//!   later, at `p(s) = exp(s·[ω]×)·p₀ + s·ν`, with `ω` (rad/s) and `ν` (world units/s) in the
-//!   camera frame (`[ω]× = Ṙ·Rᵀ`, `ν = Ṫ − ω × T` of `cam_from_world = (R, T)`).
+//!   later, at `p(s) = exp([s·ω + ½s²·α + ⅙s³·ζ]×)·p₀ + s·ν + ½s²·a + ⅙s³·j`, with `ω` (rad/s) and `ν` (world
+//!   units/s) in the camera frame (`[ω]× = Ṙ·Rᵀ`, `ν = Ṫ − ω × T` of `cam_from_world =
+//!   (R, T)`), their rates of change `α`, `a` and those rates' `ζ`, `j`: third order about
+//!   the frame time. Over one readout the second-order terms move a point by
+//!   thousandths of a pixel; over `±1/fps` to a neighbouring video frame the hand's
+//!   acceleration (15–20 °/s² on the simulated video paths) turns the camera by `½·α·Δ²`,
+//!   about a pixel at 1920 px, and its jerk makes the poses' central difference 1–2 % faster
+//!   than the velocity (Hedborg et al. 2012 use first order within a frame; the neighbours
+//!   need up to the third, [`MotionOrder`]).
 //! * Projection: the row that sees the point depends on where it is seen, so the pixel
 //!   solves `v = π_v(p(s(v)))` (a contraction: the motion over one row is a tiny fraction of
 //!   a row); [`project`] iterates it, [`project_with_jacobians`] differentiates the solution
@@ -21,29 +28,133 @@ use nalgebra::{Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
 use super::brown::Intrinsics;
 use crate::geometry::pose::skew;
 
-/// A frame's motion about its pose at the frame time (camera frame).
+/// A frame's motion about its pose at the frame time (camera frame), to second order.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Motion {
     /// Angular velocity ω (rad/s).
     pub angular: Vector3<f64>,
     /// Linear velocity ν (world units/s).
     pub linear: Vector3<f64>,
+    /// Angular acceleration α (rad/s²); zero for a first-order motion.
+    pub angular_acceleration: Vector3<f64>,
+    /// Linear acceleration a (world units/s²); zero for a first-order motion.
+    pub linear_acceleration: Vector3<f64>,
+    /// Angular jerk ζ (rad/s³); zero below third order.
+    pub angular_jerk: Vector3<f64>,
+    /// Linear jerk j (world units/s³); zero below third order.
+    pub linear_jerk: Vector3<f64>,
 }
 
+/// The order of a frame's motion about its time: how many of its values are adjusted.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum MotionOrder {
+    /// Velocities `[ωx, ωy, ωz, νx, νy, νz]` (within one frame's readout).
+    #[default]
+    First,
+    /// Velocities, then accelerations `[αx, αy, αz, ax, ay, az]`.
+    Second,
+    /// Velocities, accelerations, then jerks `[ζx, ζy, ζz, jx, jy, jz]` (neighbouring video
+    /// frames `±1/fps` away: the central difference of their poses is the velocity only to
+    /// second order, `Δ²·jerk/6` off, 1–2 % of the speed on the simulated video paths).
+    Third,
+}
+
+impl MotionOrder {
+    /// Adjusted values: 6 per order.
+    #[must_use]
+    pub fn values(self) -> usize {
+        match self {
+            MotionOrder::First => 6,
+            MotionOrder::Second => 12,
+            MotionOrder::Third => 18,
+        }
+    }
+}
+
+/// The time unit of the adjusted higher-order values (s, one frame interval at 30 fps): an
+/// acceleration is adjusted as `α·T` and a jerk as `ζ·T²`, in the units of a velocity, so that
+/// over `±1/fps` every order moves the image by comparable amounts per unit and the normal
+/// equations stay well conditioned (a jerk in rad/s³ moves a pixel 10⁵ times less than a
+/// rotation of the pose).
+pub const HIGHER_ORDER_TIME_UNIT_S: f64 = 1.0 / 30.0;
+
 impl Motion {
-    /// From the six adjusted values `[ωx, ωy, ωz, νx, νy, νz]`.
+    /// From the adjusted values of a motion of any order ([`MotionOrder::values`]; the higher
+    /// orders missing are zero): velocities, then accelerations × [`HIGHER_ORDER_TIME_UNIT_S`],
+    /// then jerks × its square.
     #[must_use]
     pub fn from_slice(v: &[f64]) -> Self {
+        let at = |k: usize, scale: f64| {
+            v.get(k..k + 3)
+                .map_or_else(Vector3::zeros, |x| Vector3::new(x[0], x[1], x[2]) * scale)
+        };
+        let t = HIGHER_ORDER_TIME_UNIT_S;
         Motion {
-            angular: Vector3::new(v[0], v[1], v[2]),
-            linear: Vector3::new(v[3], v[4], v[5]),
+            angular: at(0, 1.0),
+            linear: at(3, 1.0),
+            angular_acceleration: at(6, 1.0 / t),
+            linear_acceleration: at(9, 1.0 / t),
+            angular_jerk: at(12, 1.0 / (t * t)),
+            linear_jerk: at(15, 1.0 / (t * t)),
         }
+    }
+
+    /// The adjusted values of the third-order motion: the inverse of [`Motion::from_slice`].
+    #[must_use]
+    pub fn values(&self) -> [f64; 18] {
+        let t = HIGHER_ORDER_TIME_UNIT_S;
+        let mut out = [0.0; 18];
+        for (k, (x, scale)) in [
+            (self.angular, 1.0),
+            (self.linear, 1.0),
+            (self.angular_acceleration, t),
+            (self.linear_acceleration, t),
+            (self.angular_jerk, t * t),
+            (self.linear_jerk, t * t),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            for (o, v) in out[3 * k..3 * k + 3].iter_mut().zip(x.iter()) {
+                *o = v * scale;
+            }
+        }
+        out
+    }
+
+    /// The rotation vector turning the camera frame at the frame time into the one `s`
+    /// seconds later (applied to points): `s·ω + ½s²·α + ⅙s³·ζ`.
+    #[must_use]
+    pub fn rotation_at(&self, s: f64) -> Vector3<f64> {
+        self.angular * s
+            + self.angular_acceleration * (0.5 * s * s)
+            + self.angular_jerk * (s * s * s / 6.0)
+    }
+
+    /// Its rate `ω + s·α + ½s²·ζ`.
+    #[must_use]
+    pub fn rotation_rate_at(&self, s: f64) -> Vector3<f64> {
+        self.angular + self.angular_acceleration * s + self.angular_jerk * (0.5 * s * s)
+    }
+
+    /// The translation of the point: `s·ν + ½s²·a + ⅙s³·j`.
+    #[must_use]
+    pub fn translation_at(&self, s: f64) -> Vector3<f64> {
+        self.linear * s
+            + self.linear_acceleration * (0.5 * s * s)
+            + self.linear_jerk * (s * s * s / 6.0)
+    }
+
+    /// Its rate `ν + s·a + ½s²·j`.
+    #[must_use]
+    pub fn translation_rate_at(&self, s: f64) -> Vector3<f64> {
+        self.linear + self.linear_acceleration * s + self.linear_jerk * (0.5 * s * s)
     }
 
     /// Where a point at `p0` in the camera frame at the frame time is `s` seconds later.
     #[must_use]
     pub fn point_at(&self, p0: &Vector3<f64>, s: f64) -> Vector3<f64> {
-        exp_so3(&(self.angular * s)) * p0 + self.linear * s
+        exp_so3(&self.rotation_at(s)) * p0 + self.translation_at(s)
     }
 }
 
@@ -134,8 +245,9 @@ pub struct RollingProjection {
     pub time_s: f64,
     /// `∂uv/∂p₀` (2×3).
     pub d_uv_d_p0: Matrix2x3<f64>,
-    /// `∂uv/∂(ω, ν)` (2×6).
-    pub d_uv_d_motion: SMatrix<f64, 2, 6>,
+    /// `∂uv/∂(ω, ν, α, a, ζ, j)` (2×18; the first [`MotionOrder::values`] columns are a motion
+    /// of that order's).
+    pub d_uv_d_motion: SMatrix<f64, 2, 18>,
     /// `∂uv/∂intrinsics`, columns in the order of [`super::Term::ALL`] (2×10).
     pub d_uv_d_intrinsics: SMatrix<f64, 2, 10>,
     /// `∂uv/∂τ` (px/s).
@@ -155,14 +267,15 @@ pub fn project_with_jacobians(
     offset_s: f64,
 ) -> Option<RollingProjection> {
     let (_, s) = project(intrinsics, timing, motion, p0, offset_s)?;
-    let phi = motion.angular * s;
+    let phi = motion.rotation_at(s);
     let e = exp_so3(&phi);
     let e_p0 = e * p0;
-    let q = e_p0 + motion.linear * s;
+    let q = e_p0 + motion.translation_at(s);
     let proj = intrinsics.project_with_jacobians(&q)?;
     let jb = proj.d_uv_d_p_cam;
-    // ∂p/∂s = ω × (E·p₀) + ν
-    let dq_ds = motion.angular.cross(&e_p0) + motion.linear;
+    // ∂p/∂φ = −[E·p₀]×·J_l(φ); ∂p/∂s = ∂p/∂φ·φ'(s) + t'(s).
+    let dq_dphi = -skew(&e_p0) * left_jacobian_so3(&phi);
+    let dq_ds = dq_dphi * motion.rotation_rate_at(s) + motion.translation_rate_at(s);
     let ba = jb * dq_ds;
     let (b, a) = (ba.x, ba.y);
     let k = timing.readout_s / timing.height_px;
@@ -181,17 +294,22 @@ pub fn project_with_jacobians(
     for c in 0..3 {
         d_uv_d_p0.set_column(c, &solve(explicit_p0[(0, c)], explicit_p0[(1, c)], 0.0));
     }
-    // ∂p/∂ω = −s·[E·p₀]×·J_l(s·ω), ∂p/∂ν = s·I.
-    let dq_domega = -skew(&e_p0) * left_jacobian_so3(&phi) * s;
-    let explicit_omega = jb * dq_domega;
-    let explicit_nu = jb * s;
-    let mut d_uv_d_motion = SMatrix::<f64, 2, 6>::zeros();
-    for c in 0..3 {
-        d_uv_d_motion.set_column(
-            c,
-            &solve(explicit_omega[(0, c)], explicit_omega[(1, c)], 0.0),
-        );
-        d_uv_d_motion.set_column(3 + c, &solve(explicit_nu[(0, c)], explicit_nu[(1, c)], 0.0));
+    // Order k's values act through sᵏ/(k!·Tᵏ⁻¹) (T the time unit of the higher orders):
+    // ∂p/∂ω = s·∂p/∂φ, ∂p/∂ν = s·I, ∂p/∂(α·T) = s²/(2T)·∂p/∂φ, ∂p/∂(a·T) = s²/(2T)·I,
+    // ∂p/∂(ζ·T²) = s³/(6T²)·∂p/∂φ, ∂p/∂(j·T²) = s³/(6T²)·I.
+    let explicit_phi = jb * dq_dphi;
+    let t = HIGHER_ORDER_TIME_UNIT_S;
+    let mut d_uv_d_motion = SMatrix::<f64, 2, 18>::zeros();
+    for (order, f) in [s, 0.5 * s * s / t, s * s * s / (6.0 * t * t)]
+        .into_iter()
+        .enumerate()
+    {
+        for c in 0..3 {
+            let (ru, rv) = (explicit_phi[(0, c)], explicit_phi[(1, c)]);
+            let (tu, tv) = (jb[(0, c)], jb[(1, c)]);
+            d_uv_d_motion.set_column(6 * order + c, &solve(f * ru, f * rv, 0.0));
+            d_uv_d_motion.set_column(6 * order + 3 + c, &solve(f * tu, f * tv, 0.0));
+        }
     }
     let mut d_uv_d_intrinsics = SMatrix::<f64, 2, 10>::zeros();
     for c in 0..10 {
@@ -232,11 +350,16 @@ mod tests {
         }
     }
 
-    /// Hand-held motion: 8 °/s about a tilted axis, 0.12 m/s.
+    /// Hand-held motion: 8 °/s about a tilted axis, 0.12 m/s, changing by 20 °/s² and 0.5
+    /// m/s².
     fn motion() -> Motion {
         Motion {
             angular: Vector3::new(0.3, -0.9, 0.4).normalize() * 8f64.to_radians(),
             linear: Vector3::new(0.05, 0.1, -0.04).normalize() * 0.12,
+            angular_acceleration: Vector3::new(-0.5, 0.2, 0.8).normalize() * 20f64.to_radians(),
+            linear_acceleration: Vector3::new(0.3, -0.2, 0.1).normalize() * 0.5,
+            angular_jerk: Vector3::new(0.1, 0.7, -0.3).normalize() * 400f64.to_radians(),
+            linear_jerk: Vector3::new(-0.6, 0.2, 0.4).normalize() * 8.0,
         }
     }
 
@@ -317,11 +440,18 @@ mod tests {
                 let num = (at(&i, &t, &m, &a) - at(&i, &t, &m, &b)) / (2.0 * h);
                 close(num, j.d_uv_d_p0.column(c).into(), "p0");
             }
-            for c in 0..6 {
+            let v = m.values();
+            let back = Motion::from_slice(&v);
+            for (x, y) in [
+                (back.angular, m.angular),
+                (back.linear_acceleration, m.linear_acceleration),
+                (back.angular_jerk, m.angular_jerk),
+                (back.linear_jerk, m.linear_jerk),
+            ] {
+                assert!((x - y).norm() <= 1e-12 * y.norm(), "{x} {y}");
+            }
+            for c in 0..MotionOrder::Third.values() {
                 let h = 1e-6;
-                let mut v = [0.0; 6];
-                v[..3].copy_from_slice(m.angular.as_slice());
-                v[3..].copy_from_slice(m.linear.as_slice());
                 let (mut a, mut b) = (v, v);
                 a[c] += h;
                 b[c] -= h;

@@ -1156,6 +1156,7 @@ fn pose_radius_std(
                         12 => crate::camera::rolling::Motion {
                             angular: m.angular + Vector3::from_fn(|r, _| delta[block * j + 6 + r]),
                             linear: m.linear + Vector3::from_fn(|r, _| delta[block * j + 9 + r]),
+                            ..*m
                         },
                         _ => *m,
                     })
