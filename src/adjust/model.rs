@@ -185,9 +185,7 @@ impl CameraModel for BrownModel {
 
     fn local_scale_direction(&self, local: &[f64], out: &mut [f64]) {
         out.fill(0.0);
-        // ν, a and j are in world units (per second, s², s³): they scale with the world; the
-        // angular values do not.
-        for block in [3..6, 9..12, 15..18] {
+        for block in rolling::WORLD_UNIT_BLOCKS {
             if let (Some(o), Some(l)) = (out.get_mut(block.clone()), local.get(block)) {
                 o.copy_from_slice(l);
             }
@@ -195,7 +193,7 @@ impl CameraModel for BrownModel {
     }
 
     fn scale_local(&self, local: &mut [f64], s: f64) {
-        for block in [3..6, 9..12, 15..18] {
+        for block in rolling::WORLD_UNIT_BLOCKS {
             if let Some(l) = local.get_mut(block) {
                 for v in l {
                     *v *= s;

@@ -621,10 +621,11 @@ fn try_rolling_shutter(
 /// here ([`NEIGHBOUR_MOTION_ORDER`]; each neighbour's own rows show its own velocity, which
 /// separates the jerk from the velocity), for the frames seen from both sides. What is left
 /// (hand tremor at 4–12 Hz beyond third order over `±1/fps`) keeps the neighbours' residuals
-/// larger than the frames'. Their weight is set by a variance-component estimate (Förstner 1979, simplified
-/// to the groups' RMS residuals), `w = (RMS of the frames / RMS of the neighbours)²`, iterated
-/// until it changes by less than 10 % (at most [`VARIANCE_COMPONENT_ITERATIONS`] times), so
-/// that σ0 and the covariance stay those of the frames' observations.
+/// larger than the frames'. Their weight is set by a variance-component estimate (Förstner
+/// 1979, simplified to the groups' RMS residuals), `w = (RMS of the frames / RMS of the
+/// neighbours)²`, iterated until it changes by less than 10 % (at most
+/// [`VARIANCE_COMPONENT_ITERATIONS`] times), so that σ0 and the covariance stay those of the
+/// frames' observations.
 ///
 /// # Errors
 /// [`AdjustError::Invalid`] for a model without a rolling shutter or observations that do not
@@ -731,10 +732,10 @@ pub fn estimate_readout_time(
         log,
     );
     // The neighbours' errors are mostly one motion error per neighbour frame (tremor bends
-    // the motion over 1/fps beyond its third order), not independent per target: the adjustment's σ of
-    // the readout time, which assumes independence, is scaled by the design effect of those
-    // clusters (Kish 1965: 1 + (m̄ − 1)·ρ, with the regressor taken as fully correlated
-    // within a frame, which is conservative).
+    // the motion over 1/fps beyond its third order), not independent per target: the
+    // adjustment's σ of the readout time, which assumes independence, is scaled by the design
+    // effect of those clusters (Kish 1965: 1 + (m̄ − 1)·ρ, with the regressor taken as fully
+    // correlated within a frame, which is conservative).
     let deff = neighbour_design_effect(&fitted.problem);
     let readout_std_s = fitted.precision.global_std()[BrownModel::READOUT] * deff.sqrt();
     log(&format!(

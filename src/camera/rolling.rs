@@ -78,77 +78,108 @@ impl MotionOrder {
 /// rotation of the pose).
 pub const HIGHER_ORDER_TIME_UNIT_S: f64 = 1.0 / 30.0;
 
+/// The blocks of the adjusted values ([`Motion::values`]) in world units: ν, `a·T` and
+/// `j·T²`, which scale with the world; the angular ones do not.
+pub const WORLD_UNIT_BLOCKS: [std::ops::Range<usize>; 3] = [3..6, 9..12, 15..18];
+
+/// The unit of each order's adjusted value, `Tᵏ` ([`HIGHER_ORDER_TIME_UNIT_S`]): the
+/// velocities as they are, `α·T`, `a·T`, then `ζ·T²`, `j·T²`.
+const ORDER_UNITS: [f64; 3] = [
+    1.0,
+    HIGHER_ORDER_TIME_UNIT_S,
+    HIGHER_ORDER_TIME_UNIT_S * HIGHER_ORDER_TIME_UNIT_S,
+];
+
+/// The Taylor weights `sᵏ⁺¹/(k+1)!` of the orders' values in the motion `s` seconds on:
+/// `[s, ½s², ⅙s³]`.
+fn order_weights(s: f64) -> [f64; 3] {
+    [s, 0.5 * s * s, s * s * s / 6.0]
+}
+
+/// Their derivatives in `s`: `[1, s, ½s²]`.
+fn order_rates(s: f64) -> [f64; 3] {
+    [1.0, s, 0.5 * s * s]
+}
+
+/// `Σₖ wₖ·xₖ`.
+fn weighted(x: &[Vector3<f64>; 3], w: [f64; 3]) -> Vector3<f64> {
+    x[0] * w[0] + x[1] * w[1] + x[2] * w[2]
+}
+
 impl Motion {
     /// From the adjusted values of a motion of any order ([`MotionOrder::values`]; the higher
     /// orders missing are zero): velocities, then accelerations × [`HIGHER_ORDER_TIME_UNIT_S`],
     /// then jerks × its square.
     #[must_use]
     pub fn from_slice(v: &[f64]) -> Self {
-        let at = |k: usize, scale: f64| {
-            v.get(k..k + 3)
-                .map_or_else(Vector3::zeros, |x| Vector3::new(x[0], x[1], x[2]) * scale)
+        let at = |k: usize| {
+            v.get(3 * k..3 * k + 3).map_or_else(Vector3::zeros, |x| {
+                Vector3::new(x[0], x[1], x[2]) / ORDER_UNITS[k / 2]
+            })
         };
-        let t = HIGHER_ORDER_TIME_UNIT_S;
         Motion {
-            angular: at(0, 1.0),
-            linear: at(3, 1.0),
-            angular_acceleration: at(6, 1.0 / t),
-            linear_acceleration: at(9, 1.0 / t),
-            angular_jerk: at(12, 1.0 / (t * t)),
-            linear_jerk: at(15, 1.0 / (t * t)),
+            angular: at(0),
+            linear: at(1),
+            angular_acceleration: at(2),
+            linear_acceleration: at(3),
+            angular_jerk: at(4),
+            linear_jerk: at(5),
         }
     }
 
     /// The adjusted values of the third-order motion: the inverse of [`Motion::from_slice`].
     #[must_use]
     pub fn values(&self) -> [f64; 18] {
-        let t = HIGHER_ORDER_TIME_UNIT_S;
         let mut out = [0.0; 18];
-        for (k, (x, scale)) in [
-            (self.angular, 1.0),
-            (self.linear, 1.0),
-            (self.angular_acceleration, t),
-            (self.linear_acceleration, t),
-            (self.angular_jerk, t * t),
-            (self.linear_jerk, t * t),
-        ]
-        .into_iter()
-        .enumerate()
-        {
-            for (o, v) in out[3 * k..3 * k + 3].iter_mut().zip(x.iter()) {
-                *o = v * scale;
+        let blocks = [
+            self.angular,
+            self.linear,
+            self.angular_acceleration,
+            self.linear_acceleration,
+            self.angular_jerk,
+            self.linear_jerk,
+        ];
+        for (k, (o, x)) in out.chunks_exact_mut(3).zip(blocks).enumerate() {
+            for (o, v) in o.iter_mut().zip(x.iter()) {
+                *o = v * ORDER_UNITS[k / 2];
             }
         }
         out
+    }
+
+    /// The angular values by order: `[ω, α, ζ]`.
+    fn angular_orders(&self) -> [Vector3<f64>; 3] {
+        [self.angular, self.angular_acceleration, self.angular_jerk]
+    }
+
+    /// The linear values by order: `[ν, a, j]`.
+    fn linear_orders(&self) -> [Vector3<f64>; 3] {
+        [self.linear, self.linear_acceleration, self.linear_jerk]
     }
 
     /// The rotation vector turning the camera frame at the frame time into the one `s`
     /// seconds later (applied to points): `s·ω + ½s²·α + ⅙s³·ζ`.
     #[must_use]
     pub fn rotation_at(&self, s: f64) -> Vector3<f64> {
-        self.angular * s
-            + self.angular_acceleration * (0.5 * s * s)
-            + self.angular_jerk * (s * s * s / 6.0)
+        weighted(&self.angular_orders(), order_weights(s))
     }
 
     /// Its rate `ω + s·α + ½s²·ζ`.
     #[must_use]
     pub fn rotation_rate_at(&self, s: f64) -> Vector3<f64> {
-        self.angular + self.angular_acceleration * s + self.angular_jerk * (0.5 * s * s)
+        weighted(&self.angular_orders(), order_rates(s))
     }
 
     /// The translation of the point: `s·ν + ½s²·a + ⅙s³·j`.
     #[must_use]
     pub fn translation_at(&self, s: f64) -> Vector3<f64> {
-        self.linear * s
-            + self.linear_acceleration * (0.5 * s * s)
-            + self.linear_jerk * (s * s * s / 6.0)
+        weighted(&self.linear_orders(), order_weights(s))
     }
 
     /// Its rate `ν + s·a + ½s²·j`.
     #[must_use]
     pub fn translation_rate_at(&self, s: f64) -> Vector3<f64> {
-        self.linear + self.linear_acceleration * s + self.linear_jerk * (0.5 * s * s)
+        weighted(&self.linear_orders(), order_rates(s))
     }
 
     /// Where a point at `p0` in the camera frame at the frame time is `s` seconds later.
@@ -298,12 +329,9 @@ pub fn project_with_jacobians(
     // ∂p/∂ω = s·∂p/∂φ, ∂p/∂ν = s·I, ∂p/∂(α·T) = s²/(2T)·∂p/∂φ, ∂p/∂(a·T) = s²/(2T)·I,
     // ∂p/∂(ζ·T²) = s³/(6T²)·∂p/∂φ, ∂p/∂(j·T²) = s³/(6T²)·I.
     let explicit_phi = jb * dq_dphi;
-    let t = HIGHER_ORDER_TIME_UNIT_S;
     let mut d_uv_d_motion = SMatrix::<f64, 2, 18>::zeros();
-    for (order, f) in [s, 0.5 * s * s / t, s * s * s / (6.0 * t * t)]
-        .into_iter()
-        .enumerate()
-    {
+    for (order, (w, unit)) in order_weights(s).into_iter().zip(ORDER_UNITS).enumerate() {
+        let f = w / unit;
         for c in 0..3 {
             let (ru, rv) = (explicit_phi[(0, c)], explicit_phi[(1, c)]);
             let (tu, tv) = (jb[(0, c)], jb[(1, c)]);
