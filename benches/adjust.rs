@@ -3,11 +3,19 @@
 //! adjustment of a simulated 90-frame 4K lab (P30 preset, true centres + 0.01 px noise, c,
 //! u0, v0, k1, k2, p1, p2 free), also with the rolling-shutter model (a motion per frame, 540
 //! unknowns more, readout held: the selection's rolling-shutter candidate; issue 19's goal
-//! ≤ 0.5 s). Reading and building the problems is outside the measurement.
+//! ≤ 0.5 s), and the readout time's estimate over the neighbouring video frames (third-order
+//! motions, 18 per frame, 1620 unknowns, each frame's targets also seen `±1/30 s` away,
+//! readout free: `calibrate::selection::estimate_readout_time`'s adjustment). Reading and
+//! building the problems is outside the measurement.
 #![allow(missing_docs, clippy::unwrap_used)]
 
 use criterion::{Criterion, criterion_group, criterion_main};
-use pipemeasure::adjust::{AdjustConfig, BrownModel, bundle_adjust, problem_from_bal};
+use nalgebra::{Vector2, Vector3};
+use pipemeasure::adjust::{
+    AdjustConfig, BrownModel, Observation, Problem, bundle_adjust, problem_from_bal,
+};
+use pipemeasure::camera::Intrinsics;
+use pipemeasure::camera::rolling::{self, Motion, MotionOrder, RowTiming};
 use pipemeasure::experiments::calibration::truth_target_problem;
 use pipemeasure::io::bal::read_bal;
 use pipemeasure::sim::lab::LabConfig;
@@ -49,7 +57,82 @@ fn adjust(c: &mut Criterion) {
             bundle_adjust(&mut p, &AdjustConfig::default()).unwrap()
         });
     });
+    let neighbours = neighbour_problem(&lab_problem, &truth.camera.intrinsics);
+    group.bench_function("lab-p30-4k-90-neighbours-third-order", |b| {
+        b.iter(|| {
+            let mut p = neighbours.clone();
+            bundle_adjust(&mut p, &AdjustConfig::default()).unwrap()
+        });
+    });
     group.finish();
+}
+
+/// The lab's targets seen by frames moving with a hand-held third-order motion (a seeded
+/// 3–9 °/s turn and 0.05–0.15 m/s, accelerations and jerks of a few frame intervals' change)
+/// under a 20 ms readout, in each frame and in its two neighbours `±1/30 s` away (exact
+/// rolling-shutter projections, 0.01 px of noise; the neighbours weighted 0.4 as the variance
+/// components put them), started as the selection leaves it: first-order motions at their
+/// truth, higher orders at zero, readout 25 ms, the intrinsics of `start`'s problem.
+fn neighbour_problem(start: &Problem<BrownModel>, camera: &Intrinsics) -> Problem<BrownModel> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);
+    let (height, readout, dt) = (2160.0, 0.02, 1.0 / 30.0);
+    let timing = RowTiming {
+        readout_s: readout,
+        height_px: height,
+    };
+    let mut unit = |scale: f64| {
+        let v = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+        );
+        v.normalize() * scale
+    };
+    let motions: Vec<Motion> = (0..start.num_cameras())
+        .map(|_| Motion {
+            angular: unit(6f64.to_radians()),
+            linear: unit(0.1),
+            angular_acceleration: unit(30f64.to_radians()),
+            linear_acceleration: unit(0.5),
+            angular_jerk: unit(600f64.to_radians()),
+            linear_jerk: unit(10.0),
+        })
+        .collect();
+    let mut noise = rand_chacha::ChaCha8Rng::seed_from_u64(20);
+    let mut observations = Vec::new();
+    for o in &start.observations {
+        let p0 = start.cam_from_world[o.camera]
+            .transform_point(&nalgebra::Point3::from(start.points[o.point]));
+        for (offset, weight) in [(0.0, 1.0), (-dt, 0.4), (dt, 0.4)] {
+            let Some((uv, _)) =
+                rolling::project(camera, &timing, &motions[o.camera], &p0.coords, offset)
+            else {
+                continue;
+            };
+            let n = Vector2::new(
+                noise.random_range(-0.017..0.017),
+                noise.random_range(-0.017..0.017),
+            );
+            observations.push(Observation {
+                uv: uv + n,
+                weight,
+                time_offset_s: offset,
+                ..*o
+            });
+        }
+    }
+    let first = start.with_rolling_shutter(height, 0.025);
+    let mut third = first.with_motion_order(MotionOrder::Third, &vec![true; start.num_cameras()]);
+    for (local, m) in third
+        .local
+        .chunks_mut(MotionOrder::Third.values())
+        .zip(&motions)
+    {
+        local[..6].copy_from_slice(&m.values()[..6]);
+    }
+    third.observations = observations;
+    third
 }
 
 criterion_group!(benches, adjust);

@@ -192,6 +192,56 @@ fn noise_free_network_converges_to_the_truth() {
     }
 }
 
+/// Observations of one point by one camera share one Schur block (the solver sums them per
+/// (camera, point) pair, as a video frame's neighbours observe the same target at other
+/// times): splitting each observation into two copies of half its weight, the copies placed
+/// apart in the list, leaves the least-squares normal equations as they were, so every step
+/// is the same. A wrong block would still converge (the gradient is summed per observation)
+/// but by other steps: the first step is compared, relative to its length, then the cost at
+/// convergence (the iteration counts differ by the rejected steps at rounding level near the
+/// tight tolerances' end).
+#[test]
+fn split_observations_adjust_as_the_whole() {
+    let net = network();
+    let whole = perturbed(&net, 5, 0.3);
+    let mut split = whole.clone();
+    let halves: Vec<Observation> = whole
+        .observations
+        .iter()
+        .map(|o| Observation {
+            weight: 0.5 * o.weight,
+            ..*o
+        })
+        .collect();
+    split.observations = halves.iter().chain(halves.iter().rev()).copied().collect();
+    let one_step = AdjustConfig {
+        max_iterations: 1,
+        ..tight()
+    };
+    let (mut a, mut b) = (whole.clone(), split.clone());
+    bundle_adjust(&mut a, &one_step).unwrap();
+    bundle_adjust(&mut b, &one_step).unwrap();
+    for (k, ((x, y), x0)) in a.global.iter().zip(&b.global).zip(&whole.global).enumerate() {
+        if k >= 8 {
+            continue; // b1, b2: fixed
+        }
+        assert!(
+            (x - y).abs() <= 1e-9 * (x - x0).abs(),
+            "intrinsic {k} after one step: {x} vs {y} (from {x0})"
+        );
+    }
+    let (mut a, mut b) = (whole, split);
+    let sa = bundle_adjust(&mut a, &tight()).unwrap();
+    let sb = bundle_adjust(&mut b, &tight()).unwrap();
+    assert!(sa.is_usable() && sb.is_usable(), "{sa:?} {sb:?}");
+    assert!(
+        (sa.final_cost - sb.final_cost).abs() <= 1e-9 * sa.final_cost,
+        "{} vs {}",
+        sa.final_cost,
+        sb.final_cost
+    );
+}
+
 #[test]
 fn inner_constraint_basis_spans_the_null_space() {
     // J·B = 0 for every observation of a consistent network: the similarity changes no image.

@@ -52,8 +52,20 @@ pub(crate) struct Incidence {
     pub(crate) point_start: Vec<usize>,
     pub(crate) by_camera: Vec<usize>,
     pub(crate) camera_start: Vec<usize>,
-    /// The point of each observation.
-    pub(crate) point_of: Vec<usize>,
+    /// The (camera, point) pairs, ordered by camera then point: the observations of one point
+    /// by one camera (a video frame's neighbours observe it again at other times) share one
+    /// `W` block, so the Schur complement's cost grows with the pairs, not the observations.
+    /// The observations of pair k are `pair_obs[pair_start[k]..pair_start[k + 1]]`.
+    pub(crate) pair_obs: Vec<usize>,
+    pub(crate) pair_start: Vec<usize>,
+    /// The camera and the point of each pair.
+    pub(crate) pair_camera: Vec<usize>,
+    pub(crate) pair_point: Vec<usize>,
+    /// Pair indices grouped by camera and by point.
+    pub(crate) pairs_by_camera: Vec<usize>,
+    pub(crate) camera_pair_start: Vec<usize>,
+    pub(crate) pairs_by_point: Vec<usize>,
+    pub(crate) point_pair_start: Vec<usize>,
 }
 
 impl Incidence {
@@ -61,13 +73,56 @@ impl Incidence {
         let (by_point, point_start) = group(p.observations.iter().map(|o| o.point), p.points.len());
         let (by_camera, camera_start) =
             group(p.observations.iter().map(|o| o.camera), p.num_cameras());
+        let key = |o: usize| (p.observations[o].camera, p.observations[o].point);
+        let mut pair_obs: Vec<usize> = (0..p.observations.len()).collect();
+        pair_obs.sort_by_key(|&o| (key(o), o));
+        let (mut pair_start, mut pair_camera, mut pair_point) =
+            (Vec::new(), Vec::new(), Vec::new());
+        for (i, &o) in pair_obs.iter().enumerate() {
+            if i == 0 || key(o) != key(pair_obs[i - 1]) {
+                pair_start.push(i);
+                pair_camera.push(key(o).0);
+                pair_point.push(key(o).1);
+            }
+        }
+        pair_start.push(pair_obs.len());
+        let (pairs_by_camera, camera_pair_start) =
+            group(pair_camera.iter().copied(), p.num_cameras());
+        let (pairs_by_point, point_pair_start) = group(pair_point.iter().copied(), p.points.len());
         Incidence {
             by_point,
             point_start,
             by_camera,
             camera_start,
-            point_of: p.observations.iter().map(|o| o.point).collect(),
+            pair_obs,
+            pair_start,
+            pair_camera,
+            pair_point,
+            pairs_by_camera,
+            camera_pair_start,
+            pairs_by_point,
+            point_pair_start,
         }
+    }
+
+    /// The number of (camera, point) pairs.
+    pub(crate) fn num_pairs(&self) -> usize {
+        self.pair_camera.len()
+    }
+
+    /// The observations of pair `k`.
+    pub(crate) fn obs_of_pair(&self, k: usize) -> &[usize] {
+        &self.pair_obs[self.pair_start[k]..self.pair_start[k + 1]]
+    }
+
+    /// The pairs of camera `c`.
+    pub(crate) fn pairs_of_camera(&self, c: usize) -> &[usize] {
+        &self.pairs_by_camera[self.camera_pair_start[c]..self.camera_pair_start[c + 1]]
+    }
+
+    /// The pairs of point `p`.
+    pub(crate) fn pairs_of_point(&self, p: usize) -> &[usize] {
+        &self.pairs_by_point[self.point_pair_start[p]..self.point_pair_start[p + 1]]
     }
 
     pub(crate) fn of_point(&self, p: usize) -> &[usize] {
@@ -259,7 +314,8 @@ struct Normal {
     bp: Vec<Vector3<f64>>,
     /// Per point: W_gp (dg×3), row-major.
     wg: Vec<f64>,
-    /// Per observation: W_op = jcᵀ jp (dc×3), row-major.
+    /// Per (camera, point) pair ([`Incidence::pair_obs`]): `W = Σ jcᵀ jp` over its
+    /// observations (dc×3), row-major.
     wo: Vec<f64>,
     /// Per camera: U_i (dc×dc).
     u: Vec<f64>,
@@ -276,7 +332,7 @@ struct Normal {
 }
 
 impl Normal {
-    fn new(dims: Dims, n_pts: usize, n_obs: usize) -> Self {
+    fn new(dims: Dims, n_pts: usize, n_pairs: usize) -> Self {
         let Dims { dg, dc, n_cam, .. } = dims;
         Normal {
             v: vec![Matrix3::zeros(); n_pts],
@@ -284,7 +340,7 @@ impl Normal {
             // Blocks sized by dg get at least one slot each so the parallel zips below keep
             // one chunk per point or camera when there are no shared intrinsics.
             wg: vec![0.0; n_pts * (dg * 3).max(1)],
-            wo: vec![0.0; n_obs * dc * 3],
+            wo: vec![0.0; n_pairs * dc * 3],
             u: vec![0.0; n_cam * dc * dc],
             ugc: vec![0.0; n_cam * (dg * dc).max(1)],
             bc: vec![0.0; n_cam * dc],
@@ -321,10 +377,12 @@ impl Normal {
         self.wo
             .par_chunks_mut(dc * 3)
             .enumerate()
-            .for_each(|(o, w)| {
-                let rec = view(&jac[o * stride..(o + 1) * stride], dims);
+            .for_each(|(k, w)| {
                 w.fill(0.0);
-                add_at_b(rec.jc, dc, rec.jp, 3, w);
+                for &o in inc.obs_of_pair(k) {
+                    let rec = view(&jac[o * stride..(o + 1) * stride], dims);
+                    add_at_b(rec.jc, dc, rec.jp, 3, w);
+                }
             });
         self.u
             .par_chunks_mut(dc * dc)
@@ -386,7 +444,6 @@ pub(crate) fn pinned_indices<M: CameraModel>(p: &Problem<M>, dims: Dims) -> Vec<
 fn assemble_reduced(
     dims: Dims,
     inc: &Incidence,
-    obs_camera: &[usize],
     nrm: &Normal,
     lambda: f64,
     pinned: &[usize],
@@ -438,9 +495,9 @@ fn assemble_reduced(
                 rhs_g[a] += y[a * 3] * bp.x + y[a * 3 + 1] * bp.y + y[a * 3 + 2] * bp.z;
             }
             sub_y_wt(&y, dg, wg, dg, s_g, n_r, 0);
-            for &o in inc.of_point(p) {
-                let wo = &nrm.wo[o * dc * 3..(o + 1) * dc * 3];
-                sub_y_wt(&y, dg, wo, dc, s_g, n_r, dg + obs_camera[o] * dc);
+            for &k in inc.pairs_of_point(p) {
+                let wo = &nrm.wo[k * dc * 3..(k + 1) * dc * 3];
+                sub_y_wt(&y, dg, wo, dc, s_g, n_r, dg + inc.pair_camera[k] * dc);
             }
         }
     }
@@ -460,21 +517,21 @@ fn assemble_reduced(
             }
             let mut y = [0.0; 3 * (6 + MAX_LOCAL)];
             let y = &mut y[..dc * 3];
-            for &o in inc.of_camera(c) {
-                let p = inc.point_of[o];
-                let wo = &nrm.wo[o * dc * 3..(o + 1) * dc * 3];
+            for &k in inc.pairs_of_camera(c) {
+                let p = inc.pair_point[k];
+                let wo = &nrm.wo[k * dc * 3..(k + 1) * dc * 3];
                 mul_block_3x3(wo, dc, &vinv[p], y);
                 let bp = &nrm.bp[p];
                 for a in 0..dc {
                     rhs[a] += y[a * 3] * bp.x + y[a * 3 + 1] * bp.y + y[a * 3 + 2] * bp.z;
                 }
                 // Upper block triangle only (cameras j ≥ c); mirrored below.
-                for &o2 in inc.of_point(p) {
-                    if obs_camera[o2] < c {
+                for &k2 in inc.pairs_of_point(p) {
+                    if inc.pair_camera[k2] < c {
                         continue;
                     }
-                    let w2 = &nrm.wo[o2 * dc * 3..(o2 + 1) * dc * 3];
-                    sub_y_wt(y, dc, w2, dc, rows, n_r, dg + obs_camera[o2] * dc);
+                    let w2 = &nrm.wo[k2 * dc * 3..(k2 + 1) * dc * 3];
+                    sub_y_wt(y, dc, w2, dc, rows, n_r, dg + inc.pair_camera[k2] * dc);
                 }
             }
         });
@@ -613,10 +670,9 @@ pub fn bundle_adjust<M: CameraModel>(
     let inc = Incidence::new(problem);
     let n_obs = problem.observations.len();
     let n_pts = problem.points.len();
-    let obs_camera: Vec<usize> = problem.observations.iter().map(|o| o.camera).collect();
     let pinned = pinned_indices(problem, dims);
     let mut jac = vec![0.0; n_obs * dims.stride];
-    let mut nrm = Normal::new(dims, n_pts, n_obs);
+    let mut nrm = Normal::new(dims, n_pts, inc.num_pairs());
     let mut vinv = vec![Matrix3::zeros(); n_pts];
     let mut s = vec![0.0; dims.n_r * dims.n_r];
     let mut rhs = vec![0.0; dims.n_r];
@@ -675,18 +731,10 @@ pub fn bundle_adjust<M: CameraModel>(
         iterations += 1;
         let lambda = 1.0 / radius;
         let solved = assemble_reduced(
-            dims,
-            &inc,
-            &obs_camera,
-            &nrm,
-            lambda,
-            &pinned,
-            &mut vinv,
-            &mut s,
-            &mut rhs,
+            dims, &inc, &nrm, lambda, &pinned, &mut vinv, &mut s, &mut rhs,
         ) && cholesky_solve(&mut s, dims.n_r, &mut rhs, &mut stack);
         let step = if solved {
-            back_substitute(dims, &inc, &obs_camera, &nrm, &vinv, &rhs, &mut dp);
+            back_substitute(dims, &inc, &nrm, &vinv, &rhs, &mut dp);
             Some(())
         } else {
             None
@@ -780,7 +828,6 @@ fn gradient_max_norm(nrm: &Normal, pinned: &[usize], dims: Dims) -> f64 {
 fn back_substitute(
     dims: Dims,
     inc: &Incidence,
-    obs_camera: &[usize],
     nrm: &Normal,
     vinv: &[Matrix3<f64>],
     dc_sol: &[f64],
@@ -795,9 +842,10 @@ fn back_substitute(
                 r[k] -= wg[a * 3 + k] * dc_sol[a];
             }
         }
-        for &o in inc.of_point(p) {
-            let wo = &nrm.wo[o * dc * 3..(o + 1) * dc * 3];
-            let x = &dc_sol[dg + obs_camera[o] * dc..dg + (obs_camera[o] + 1) * dc];
+        for &pair in inc.pairs_of_point(p) {
+            let wo = &nrm.wo[pair * dc * 3..(pair + 1) * dc * 3];
+            let camera = inc.pair_camera[pair];
+            let x = &dc_sol[dg + camera * dc..dg + (camera + 1) * dc];
             for a in 0..dc {
                 for k in 0..3 {
                     r[k] -= wo[a * 3 + k] * x[a];
