@@ -221,7 +221,13 @@ fn split_observations_adjust_as_the_whole() {
     let (mut a, mut b) = (whole.clone(), split.clone());
     bundle_adjust(&mut a, &one_step).unwrap();
     bundle_adjust(&mut b, &one_step).unwrap();
-    for (k, ((x, y), x0)) in a.global.iter().zip(&b.global).zip(&whole.global).enumerate() {
+    for (k, ((x, y), x0)) in a
+        .global
+        .iter()
+        .zip(&b.global)
+        .zip(&whole.global)
+        .enumerate()
+    {
         if k >= 8 {
             continue; // b1, b2: fixed
         }

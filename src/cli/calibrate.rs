@@ -25,7 +25,9 @@ use pipemeasure::geometry::conic::Ellipse;
 use pipemeasure::geometry::pose::camera_centre;
 use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
-use pipemeasure::io::colmap::{ColmapProgress, ModelFormat, Reconstruction, run_colmap_sfm_with};
+use pipemeasure::io::colmap::{
+    ColmapOptions, ColmapProgress, ModelFormat, Reconstruction, run_colmap_sfm_with,
+};
 use pipemeasure::io::sidecar::FramesSidecar;
 use pipemeasure::profile::{
     CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, ReadoutTime, StdDev,
@@ -70,6 +72,12 @@ pub struct Args {
     /// COLMAP's work folder when `--sfm` is not given (default: `FRAMES/../colmap`).
     #[arg(long)]
     work: Option<PathBuf>,
+    /// Without `--sfm`: the longest side (px) COLMAP extracts its features at (larger frames
+    /// are downsized for it; the model only starts the calibration). COLMAP's own default is
+    /// 3200.
+    #[arg(long, value_name = "PX", default_value_t = ColmapOptions::default().max_image_size,
+          value_parser = clap::value_parser!(u32).range(256..=16384))]
+    colmap_image_size: u32,
     /// Where to write the profile (default `calibrations/DEVICE.json`).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -154,7 +162,8 @@ fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
     }
     if !quiet {
         eprintln!(
-            "running COLMAP (features, sequential matching, mapping) into {}",
+            "running COLMAP (features at up to {} px, sequential matching, mapping) into {}",
+            args.colmap_image_size,
             work.display()
         );
     }
@@ -193,7 +202,11 @@ fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
         }
         _ => {}
     };
-    let model = run_colmap_sfm_with(args.frames(), &work, list.as_deref(), &report)
+    let options = ColmapOptions {
+        max_image_size: args.colmap_image_size,
+        ..ColmapOptions::default()
+    };
+    let model = run_colmap_sfm_with(args.frames(), &work, list.as_deref(), &options, &report)
         .with_context(|| "COLMAP sparse reconstruction");
     bar.finish_and_clear();
     model

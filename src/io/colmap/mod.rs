@@ -9,8 +9,8 @@ mod run;
 mod text;
 
 pub use run::{
-    ColmapProgress, ColmapRunError, colmap_available, parse_progress, run_colmap_sfm,
-    run_colmap_sfm_with,
+    ColmapOptions, ColmapProgress, ColmapRunError, colmap_available, parse_progress,
+    run_colmap_sfm, run_colmap_sfm_with,
 };
 
 use std::collections::BTreeMap;
