@@ -250,6 +250,23 @@ fn usage_errors_exit_with_2() {
     assert_eq!(pipemeasure(dir.path(), &[], &[]).0, 2);
     assert_eq!(pipemeasure(dir.path(), &["undistort"], &[]).0, 2);
     assert_eq!(pipemeasure(dir.path(), &["--no-such-flag"], &[]).0, 2);
+    // COLMAP's feature size out of its range names the option, before anything runs.
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &[
+            "calibrate",
+            "--device",
+            "x",
+            "--frames",
+            "frames",
+            "--colmap-image-size",
+            "10",
+        ],
+        &[],
+    );
+    assert_eq!(code, 2, "{stderr}");
+    assert!(stderr.contains("--colmap-image-size"), "{stderr}");
+    assert!(!dir.path().join("colmap").exists());
 }
 
 /// `simulate lab` then `match` end to end through the binary: rendered frames, detection,
