@@ -9,6 +9,7 @@ use pipemeasure::adjust::{
     bundle_adjust, free_network_datum, inner_constraint_basis, precision, problem_from_bal,
     similarity_from_points,
 };
+use pipemeasure::calibrate::jackknife::{JACKKNIFE_GROUPS, frame_jackknife};
 use pipemeasure::camera::Intrinsics;
 use pipemeasure::sim::devices::{P30, preset_camera};
 use pipemeasure::sim::sfm::gaussian;
@@ -412,4 +413,114 @@ fn bal_problem_reaches_the_ceres_cost() {
     // Ceres' figure has four significant digits.
     assert!((s.initial_cost - 8.509e5).abs() <= 0.0005e5, "{s:?}");
     assert!(s.final_cost <= 1.3345e4, "{s:?}");
+}
+
+/// The network's observations with `noise_px` of independent noise and, per frame, a radial
+/// distortion `Δ = κ·(r/c)²·(uv − centre)` of its own (κ of σ `radial_sd`): an error shared by
+/// all the targets of a frame, as a frame's motion error or its focus breathing is, and one
+/// no pose can take up.
+fn with_frame_errors(
+    net: &Network,
+    seed: u64,
+    noise_px: f64,
+    radial_sd: f64,
+) -> Problem<BrownModel> {
+    let mut p = perturbed(net, seed, noise_px);
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed);
+    let kappa: Vec<f64> = (0..net.poses.len())
+        .map(|_| radial_sd * gaussian(&mut rng))
+        .collect();
+    let centre = Vector2::new(net.truth.u0, net.truth.v0);
+    for o in &mut p.observations {
+        let d = o.uv - centre;
+        o.uv += d * (kappa[o.camera] * (d.norm() / net.truth.c).powi(2));
+    }
+    p
+}
+
+/// Monte-Carlo σ of the shared intrinsics `of` over `runs` problems of `make`, with the RMS
+/// over the runs of the adjustment's σ and of the jackknife's.
+fn spread_and_sigmas<const N: usize>(
+    runs: u64,
+    of: [usize; N],
+    make: impl Fn(u64) -> Problem<BrownModel>,
+) -> ([f64; N], [f64; N], [f64; N]) {
+    let mut estimates = Vec::new();
+    let (mut formal, mut jack) = ([0.0; N], [0.0; N]);
+    for seed in 0..runs {
+        let mut p = make(seed);
+        bundle_adjust(&mut p, &AdjustConfig::default()).unwrap();
+        let prec = precision(&p, PrecisionRequest::default()).unwrap();
+        let j = frame_jackknife(&p, &AdjustConfig::default()).unwrap();
+        assert_eq!(j.replicates.len(), JACKKNIFE_GROUPS);
+        for (i, &k) in of.iter().enumerate() {
+            formal[i] += prec.global_std()[k].powi(2);
+            jack[i] += j.std(k).powi(2);
+        }
+        estimates.push(p.global.clone());
+    }
+    let n = runs as f64;
+    let mut spread = [0.0; N];
+    for (i, &k) in of.iter().enumerate() {
+        let mean = estimates.iter().map(|e| e[k]).sum::<f64>() / n;
+        spread[i] =
+            (estimates.iter().map(|e| (e[k] - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt();
+        formal[i] = (formal[i] / n).sqrt();
+        jack[i] = (jack[i] / n).sqrt();
+    }
+    (spread, formal, jack)
+}
+
+/// Monte-Carlo runs of the jackknife tests: the spread of 60 has a sampling error of 9 %.
+const JACKKNIFE_RUNS: u64 = 60;
+
+#[test]
+fn the_frame_jackknife_agrees_with_the_covariance_on_independent_noise() {
+    // Independent noise: the adjustment's σ is right (see the Monte-Carlo test above), and the
+    // jackknife over the frames must find the same spread of c, u0, v0 and k1.
+    let net = network();
+    let (spread, formal, jack) = spread_and_sigmas(JACKKNIFE_RUNS, [0, 1, 2, 3], |s| {
+        perturbed(&net, 500 + s, 0.1)
+    });
+    for k in 0..4 {
+        let ratio = jack[k] / spread[k];
+        eprintln!(
+            "intrinsic {k}: Monte-Carlo σ {:.4e}, adjustment {:.4e}, jackknife {:.4e}",
+            spread[k], formal[k], jack[k]
+        );
+        assert!(
+            (0.7..=1.4).contains(&ratio),
+            "intrinsic {k}: jackknife σ {:.4e} against the Monte-Carlo {:.4e}",
+            jack[k],
+            spread[k]
+        );
+    }
+}
+
+#[test]
+fn the_frame_jackknife_sees_errors_shared_within_a_frame() {
+    // A radial error of its own per frame (κ of σ 3·10⁻³: 0.9 px at 700 px from the centre) on
+    // top of 0.02 px of noise: the adjustment counts every target as independent and
+    // under-states the σ of k1; the jackknife over the frames follows the Monte-Carlo spread.
+    let net = network();
+    let (spread, formal, jack) = spread_and_sigmas(JACKKNIFE_RUNS, [3], |s| {
+        with_frame_errors(&net, 700 + s, 0.02, 3e-3)
+    });
+    eprintln!(
+        "k1: Monte-Carlo σ {:.4e}, adjustment {:.4e}, jackknife {:.4e}",
+        spread[0], formal[0], jack[0]
+    );
+    assert!(
+        formal[0] < 0.6 * spread[0],
+        "the adjustment's σ of k1 {:.4e} against the Monte-Carlo {:.4e}: the frame errors do not show",
+        formal[0],
+        spread[0]
+    );
+    let ratio = jack[0] / spread[0];
+    assert!(
+        (0.7..=1.4).contains(&ratio),
+        "jackknife σ of k1 {:.4e} against the Monte-Carlo {:.4e}",
+        jack[0],
+        spread[0]
+    );
 }

@@ -6,6 +6,7 @@
 pub mod check_points;
 pub mod checks;
 pub mod eccentricity;
+pub mod jackknife;
 pub mod matching;
 pub mod neighbours;
 pub mod network;

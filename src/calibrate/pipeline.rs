@@ -276,6 +276,22 @@ pub struct Calibration {
     pub warnings: Vec<String>,
     /// The SfM camera the loop started from.
     pub initial: Intrinsics,
+    /// The jackknife over the frames that checked the covariance, when it ran (a video
+    /// calibration whose neighbouring frames fixed the readout time; [`super::jackknife`]).
+    pub frame_jackknife: Option<JackknifeCheck>,
+}
+
+/// What the jackknife over the frames ([`super::jackknife`]) found and did.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct JackknifeCheck {
+    /// Groups of frames (replicates).
+    pub groups: usize,
+    /// The factor the intrinsics' covariance was multiplied by (1 when the frames scatter
+    /// no more than the adjustment's covariance says).
+    pub variance_inflation: f64,
+    /// The readout time's jackknife σ (s); the reported σ is the larger of it and the
+    /// adjustment's.
+    pub readout_std_s: f64,
 }
 
 /// The model frames' detections: `detections[k]` are the ellipses (observed pixels) of the
@@ -759,9 +775,10 @@ pub fn calibrate(
         log(&msg);
         warnings.push(msg);
     }
-    let Some((selected, frames)) = last else {
+    let Some((mut selected, frames)) = last else {
         return Err(CalibrateError::Input("no iteration ran".into()));
     };
+    let frame_jackknife = check_by_jackknife(&mut selected, input.image_size, &config.adjust, log);
     finish(
         selected,
         &frames,
@@ -772,6 +789,7 @@ pub fn calibrate(
         feature_adjustment,
         warnings,
         initial,
+        frame_jackknife,
     )
 }
 
@@ -868,6 +886,7 @@ fn finish(
     feature_adjustment: Option<AdjustSummary>,
     mut warnings: Vec<String>,
     initial: Intrinsics,
+    frame_jackknife: Option<JackknifeCheck>,
 ) -> Result<Calibration, CalibrateError> {
     let p = &selected.problem;
     let cov = intrinsic_covariance(&selected.precision);
@@ -934,6 +953,56 @@ fn finish(
         summary: selected.summary,
         warnings,
         initial,
+        frame_jackknife,
+    })
+}
+
+/// Checks the final adjustment's covariance against the scatter of the frames by the grouped
+/// jackknife ([`super::jackknife`]) and multiplies it by the variance inflation found: for a
+/// rolling-shutter model whose readout time the neighbouring video frames fixed, where hand
+/// tremor leaves one error per frame that the covariance counts as independent per target.
+/// The readout time's σ becomes the larger of the adjustment's and the jackknife's. A
+/// jackknife that cannot run (too few frames, a replicate that fails) leaves the covariance
+/// as it is and says so in the log.
+fn check_by_jackknife(
+    selected: &mut Selected,
+    image_size: (u32, u32),
+    adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
+) -> Option<JackknifeCheck> {
+    selected.neighbour_weight?;
+    selected.rolling_shutter.as_ref()?;
+    let jackknife = match super::jackknife::frame_jackknife(&selected.problem, adjust) {
+        Ok(j) => j,
+        Err(e) => {
+            log(&format!(
+                "jackknife over the frames not run ({e}): the adjustment's covariance is reported"
+            ));
+            return None;
+        }
+    };
+    let formal = intrinsic_covariance(&selected.precision);
+    let inflation = super::jackknife::variance_inflation(
+        &intrinsics_of(&selected.problem),
+        &formal,
+        &jackknife.covariance.view((0, 0), (10, 10)).into_owned(),
+        image_size,
+    );
+    let readout_std_s = jackknife.std(BrownModel::READOUT);
+    selected.precision.global_covariance *= inflation;
+    let formal_readout = selected.readout_std_s.unwrap_or(0.0);
+    selected.readout_std_s = Some(formal_readout.max(readout_std_s));
+    log(&format!(
+        "jackknife over {} groups of frames: the frames scatter the camera by {:.2} × the adjustment's projection σ (its covariance × {inflation:.2}), the readout time by {:.3} ms (the adjustment's {:.3} ms)",
+        jackknife.groups,
+        inflation.sqrt(),
+        1e3 * readout_std_s,
+        1e3 * formal_readout
+    ));
+    Some(JackknifeCheck {
+        groups: jackknife.groups,
+        variance_inflation: inflation,
+        readout_std_s,
     })
 }
 

@@ -333,6 +333,8 @@ struct ReportJson<'a> {
     network: &'a pipemeasure::calibrate::network::Network,
     /// The check points' comparison, when given.
     check_points: Option<&'a CheckPointReport>,
+    /// The jackknife over the frames that checked (and widened) the covariance, when it ran.
+    frame_jackknife: Option<&'a pipemeasure::calibrate::pipeline::JackknifeCheck>,
 }
 
 fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> Profile {
@@ -363,6 +365,10 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
     provenance.insert("sfm".into(), serde_json::json!(model));
     provenance.insert("iterations".into(), serde_json::json!(cal.iterations.len()));
     provenance.insert("converged".into(), serde_json::json!(cal.converged));
+    if let Some(j) = &cal.frame_jackknife {
+        // The σ above are the adjustment's times √variance_inflation (the frames' scatter).
+        provenance.insert("frame_jackknife".into(), serde_json::json!(j));
+    }
     // Frames from `pipemeasure simulate lab` carry their truth next to them: say so.
     let truth_path = args.frames().parent().map(|d| d.join("truth.json"));
     if let Some(truth) = truth_path
@@ -884,6 +890,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             observations: &cal.observations,
             network: &network,
             check_points: check_report.as_ref(),
+            frame_jackknife: cal.frame_jackknife.as_ref(),
         };
         write_report(staged.path(), &cal, size, &report)
             .with_context(|| format!("writing the report {}", dir.display()))?;
