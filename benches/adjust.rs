@@ -5,8 +5,10 @@
 //! unknowns more, readout held: the selection's rolling-shutter candidate; issue 19's goal
 //! ≤ 0.5 s), and the readout time's estimate over the neighbouring video frames (third-order
 //! motions, 18 per frame, 1620 unknowns, each frame's targets also seen `±1/30 s` away,
-//! readout free: `calibrate::selection::estimate_readout_time`'s adjustment). Reading and
-//! building the problems is outside the measurement.
+//! readout free: `calibrate::selection::estimate_readout_time`'s adjustment), and the grouped
+//! jackknife over the frames that then checks its covariance (`calibrate::jackknife`, ten
+//! adjustments of nine tenths of the frames). Reading and building the problems is outside the
+//! measurement.
 #![allow(missing_docs, clippy::unwrap_used)]
 
 use criterion::{Criterion, criterion_group, criterion_main};
@@ -14,6 +16,7 @@ use nalgebra::{Vector2, Vector3};
 use pipemeasure::adjust::{
     AdjustConfig, BrownModel, Observation, Problem, bundle_adjust, problem_from_bal,
 };
+use pipemeasure::calibrate::jackknife::frame_jackknife;
 use pipemeasure::camera::Intrinsics;
 use pipemeasure::camera::rolling::{self, Motion, MotionOrder, RowTiming};
 use pipemeasure::experiments::calibration::truth_target_problem;
@@ -63,6 +66,13 @@ fn adjust(c: &mut Criterion) {
             let mut p = neighbours.clone();
             bundle_adjust(&mut p, &AdjustConfig::default()).unwrap()
         });
+    });
+    // The jackknife over the frames that checks a video calibration's covariance: ten
+    // adjustments of nine tenths of the frames, from the adjusted solution.
+    let mut adjusted = neighbours.clone();
+    bundle_adjust(&mut adjusted, &AdjustConfig::default()).unwrap();
+    group.bench_function("lab-p30-4k-90-neighbours-jackknife", |b| {
+        b.iter(|| frame_jackknife(&adjusted, &AdjustConfig::default()).unwrap());
     });
     group.finish();
 }
