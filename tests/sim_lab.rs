@@ -792,3 +792,69 @@ fn simulate_cli_films_video_and_refuses_bad_video_options_with_exit_code_2() {
         assert!(!out.join(stale).exists(), "{stale} left behind");
     }
 }
+
+/// Decodes every frame of `mp4` as raw RGB with ffmpeg.
+fn decode_rgb(mp4: &Path) -> Vec<u8> {
+    let out = std::process::Command::new("ffmpeg")
+        .args(["-loglevel", "error", "-i"])
+        .arg(mp4)
+        .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out.stdout
+}
+
+#[test]
+fn a_streamed_full_rate_video_is_the_png_video_without_the_pngs() {
+    if !common::program_available("ffmpeg", "-version", "apt-get install -y ffmpeg") {
+        return;
+    }
+    let (png, streamed) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let config = |stream_full_rate| VideoConfig {
+        frame_rate: 10.0,
+        full_rate_width: Some(160),
+        stream_full_rate,
+        ..Default::default()
+    };
+    let a = video_lab(png.path(), 320, 3, config(false), 4);
+    let b = video_lab(streamed.path(), 320, 3, config(true), 4);
+    let (fa, fb) = (
+        a.video.unwrap().full_rate.unwrap(),
+        b.video.unwrap().full_rate.unwrap(),
+    );
+    // Two seconds at 10 fps, frame 1 at t = 0.
+    assert_eq!((fb.frames, fb.streamed, fa.streamed), (21, true, false));
+    assert_eq!(fb.mp4.as_deref(), Some("video.mp4"));
+    assert!(png.path().join("video/frame_00021.png").is_file());
+    assert!(!streamed.path().join("video/frame_00001.png").exists());
+    assert!(streamed.path().join("video/motion.json").is_file());
+    assert!(!streamed.path().join("video.partial.mp4").exists());
+    // The same pixels reach the encoder either way: the decoded videos are identical, and
+    // frame 21 is the PNG's up to the encoding.
+    let (da, db) = (
+        decode_rgb(&png.path().join("video.mp4")),
+        decode_rgb(&streamed.path().join("video.mp4")),
+    );
+    let size = 160 * 90 * 3;
+    assert_eq!(db.len(), 21 * size);
+    assert!(da == db, "the streamed video differs from the PNG one");
+    let last = image::open(png.path().join("video/frame_00021.png"))
+        .unwrap()
+        .to_rgb8();
+    let mean_abs = last
+        .as_raw()
+        .iter()
+        .zip(&db[20 * size..])
+        .map(|(&x, &y)| f64::from(x.abs_diff(y)))
+        .sum::<f64>()
+        / size as f64;
+    assert!(
+        mean_abs < 3.0,
+        "frame 21 is {mean_abs} grey levels off its PNG"
+    );
+}

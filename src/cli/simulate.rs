@@ -148,6 +148,10 @@ pub struct VideoArgs {
     /// Width of the full-rate video (px).
     #[arg(long, value_name = "W", requires = "fps", default_value_t = 320)]
     video_width: u32,
+    /// Pipe the full-rate frames straight into video.mp4 with ffmpeg (required) instead of
+    /// writing them as PNG: a 90 s 4K30 video is some 50 GB of PNG.
+    #[arg(long, requires = "fps")]
+    video_stream: bool,
 }
 
 /// Parses a duration in milliseconds into seconds.
@@ -195,6 +199,7 @@ fn video_config(v: &VideoArgs) -> Option<VideoConfig> {
         focus_breathing: v.focus_breathing,
         neighbours: v.neighbours,
         full_rate_width: v.fps.map(|_| v.video_width),
+        stream_full_rate: v.video_stream,
         ..VideoConfig::default()
     })
 }
@@ -309,15 +314,14 @@ fn video_summary(truth: &Truth) -> String {
         },
     );
     if let Some(full) = &v.full_rate {
+        let place = match (full.streamed, full.mp4.as_deref()) {
+            (true, Some(m)) => format!("streamed into {m} (no PNG)"),
+            (_, Some(m)) => format!("in video/, {m}"),
+            (_, None) => "in video/".to_string(),
+        };
         text += &format!(
-            "\nfull-rate video: {} frames {}x{} at {} fps in video/{}",
-            full.frames,
-            full.width,
-            full.height,
-            v.frame_rate,
-            full.mp4
-                .as_deref()
-                .map_or(String::new(), |m| format!(", {m}")),
+            "\nfull-rate video: {} frames {}x{} at {} fps {place}",
+            full.frames, full.width, full.height, v.frame_rate,
         );
     }
     text

@@ -134,6 +134,12 @@ pub enum SimError {
     /// COLMAP failed or is missing.
     #[error(transparent)]
     Colmap(#[from] crate::io::colmap::ColmapRunError),
+    /// ffmpeg, which encodes a streamed video, failed or is missing.
+    #[error("encoding the video with ffmpeg: {reason}")]
+    Ffmpeg {
+        /// What went wrong, with ffmpeg's own message.
+        reason: String,
+    },
 }
 
 impl SimulateOptions {

@@ -383,6 +383,9 @@ pub struct FullRateTruth {
     pub height: u32,
     /// Frames written (`video/frame_00001.png` …, frame j at time (j − 1)/frame_rate).
     pub frames: usize,
+    /// The frames went straight into `video.mp4` and no PNG was written.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub streamed: bool,
     /// `video.mp4` when ffmpeg encoded it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mp4: Option<String>,

@@ -15,6 +15,10 @@
 //! OUT/video.mp4                           the same frames encoded by ffmpeg (when on the PATH)
 //! ```
 //!
+//! With `stream_full_rate` the full-rate frames are piped to ffmpeg as raw RGB in their order
+//! and no PNG is written (a 90 s 4K30 video would be some 50 GB of PNG): `video/` then holds
+//! `motion.json` only, and ffmpeg is required.
+//!
 //! Focus breathing: the focus distance of a frame is the harmonic mean of the depths seen by
 //! nine rays about the image centre (±5 % of the normalised image) at the frame time, and the
 //! frame's principal distance `c·(1 + β·(1/d − 1/d_ref))` ([`super::devices::breathing_factor`])
@@ -29,7 +33,7 @@ use serde::{Deserialize, Serialize};
 
 use super::devices::{DEFAULT_EXPOSURE_S, FOCUS_REFERENCE_M, breathing_factor, preset};
 use super::lab::Station;
-use super::render::{MovingView, RayGrid, RenderConfig, render_frame_moving};
+use super::render::{Frame, MovingView, RayGrid, RenderConfig, render_frame_moving};
 use super::scene::Scene;
 use super::shutter::{PoseTable, Shutter, project_rolling_shutter};
 use super::simulate::{SimError, SimulateOptions};
@@ -75,6 +79,9 @@ pub struct VideoConfig {
     /// Encode the full-rate frames into `video.mp4` with ffmpeg when it is on the PATH
     /// (default true).
     pub encode: bool,
+    /// Pipe the full-rate frames straight into `video.mp4` (ffmpeg required) instead of
+    /// writing them as PNG (default false).
+    pub stream_full_rate: bool,
 }
 
 impl Default for VideoConfig {
@@ -89,6 +96,7 @@ impl Default for VideoConfig {
             neighbours: false,
             full_rate_width: None,
             encode: true,
+            stream_full_rate: false,
         }
     }
 }
@@ -138,6 +146,12 @@ impl VideoConfig {
             return bad(
                 "video.full_rate_width",
                 "must be a multiple of 32 between 64 and 3840 px".into(),
+            );
+        }
+        if self.stream_full_rate && (self.full_rate_width.is_none() || !self.encode) {
+            return bad(
+                "video.stream_full_rate",
+                "needs the full-rate video (full_rate_width) and its encoding".into(),
             );
         }
         self.motion
@@ -402,50 +416,121 @@ impl<'a> Filming<'a> {
         render: &RenderConfig,
         progress: &(dyn Fn(usize) + Sync),
     ) -> Result<(), SimError> {
-        let factors: Vec<f64> = shots.par_iter().map(|s| self.breathing(s.time_s)).collect();
-        let lowest = factors.iter().copied().fold(1.0, f64::min);
-        let rays = RayGrid::new(&breathing_camera(camera, lowest));
-        shots
-            .par_iter()
-            .zip(&factors)
-            .try_for_each(|(shot, &factor)| {
-                let frame_camera = breathing_camera(camera, factor);
-                let shutter = self.shutter(shot.time_s);
-                let (t0, t1) = shutter.span();
-                let poses = PoseTable::new(|t| self.trajectory.cam_from_world(t), t0, t1);
-                let view = MovingView {
-                    camera: &frame_camera,
-                    rays: &rays,
-                    ray_scale: lowest / factor,
-                    poses: &poses,
-                    shutter,
-                };
-                let frame = render_frame_moving(
-                    self.scene,
-                    &view,
-                    self.gain,
-                    render,
-                    self.options.seed,
-                    shot.noise_id,
-                )
-                .map_err(|source| SimError::Encode {
-                    name: shot.name.clone(),
-                    source,
-                })?;
-                let path = dir.join(&shot.name);
-                if let Some(parent) = path.parent() {
-                    std::fs::create_dir_all(parent).map_err(|e| WriteError::new(parent, e))?;
+        let renderer = ShotRenderer::new(self, camera, shots, render);
+        shots.par_iter().enumerate().try_for_each(|(i, shot)| {
+            let frame = renderer.frame(i, shot)?;
+            let path = dir.join(&shot.name);
+            if let Some(parent) = path.parent() {
+                std::fs::create_dir_all(parent).map_err(|e| WriteError::new(parent, e))?;
+            }
+            match &frame.jpeg {
+                Some(bytes) => write_bytes_atomic(&path, bytes)?,
+                None => crate::io::frames::write_png(
+                    &path,
+                    &image::DynamicImage::ImageRgb8(frame.image),
+                )?,
+            }
+            progress(self.done.fetch_add(1, Ordering::Relaxed) + 1);
+            Ok(())
+        })
+    }
+
+    /// Renders `shots` in their order and pipes them to ffmpeg as raw RGB into `mp4` (written
+    /// beside it and renamed at the end): a few frames at a time in parallel, the previous
+    /// group written by a second thread while the next renders.
+    fn stream(
+        &self,
+        camera: &BrownCamera,
+        shots: &[Shot],
+        mp4: &Path,
+        render: &RenderConfig,
+        progress: &(dyn Fn(usize) + Sync),
+    ) -> Result<(), SimError> {
+        use std::io::{Read, Write};
+        let ffmpeg_error = |reason: String| SimError::Ffmpeg { reason };
+        let partial = mp4.with_extension("partial.mp4");
+        let mut child = std::process::Command::new("ffmpeg")
+            .args(["-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24"])
+            .arg("-s")
+            .arg(format!("{}x{}", camera.width, camera.height))
+            .arg("-framerate")
+            .arg(format!("{}", self.config.frame_rate))
+            .args(["-i", "-", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18"])
+            .arg(&partial)
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .map_err(|e| {
+                ffmpeg_error(format!(
+                    "cannot run ffmpeg ({e}); streaming the video needs it (Debian/Ubuntu: apt-get install ffmpeg)"
+                ))
+            })?;
+        let (Some(mut stdin), Some(mut stderr)) = (child.stdin.take(), child.stderr.take()) else {
+            let _ = child.kill();
+            return Err(ffmpeg_error("ffmpeg's pipes could not be opened".into()));
+        };
+        let renderer = ShotRenderer::new(self, camera, shots, render);
+        let group = 2 * rayon::current_num_threads();
+        let result = std::thread::scope(|scope| {
+            let errors = scope.spawn(move || {
+                let mut text = String::new();
+                let _ = stderr.read_to_string(&mut text);
+                text
+            });
+            let (send, receive) = std::sync::mpsc::sync_channel::<Vec<Frame>>(1);
+            let writer = scope.spawn(move || -> std::io::Result<()> {
+                for frames in receive {
+                    for frame in frames {
+                        stdin.write_all(frame.image.as_raw())?;
+                    }
                 }
-                match &frame.jpeg {
-                    Some(bytes) => write_bytes_atomic(&path, bytes)?,
-                    None => crate::io::frames::write_png(
-                        &path,
-                        &image::DynamicImage::ImageRgb8(frame.image),
-                    )?,
+                stdin.flush()
+            });
+            let mut rendered = Ok(());
+            for (g, chunk) in shots.chunks(group).enumerate() {
+                let frames: Result<Vec<Frame>, SimError> = chunk
+                    .par_iter()
+                    .enumerate()
+                    .map(|(i, shot)| renderer.frame(g * group + i, shot))
+                    .collect();
+                match frames {
+                    Ok(frames) => {
+                        let n = frames.len();
+                        if send.send(frames).is_err() {
+                            break; // the writer stopped: its error says why
+                        }
+                        progress(self.done.fetch_add(n, Ordering::Relaxed) + n);
+                    }
+                    Err(e) => {
+                        rendered = Err(e);
+                        break;
+                    }
                 }
-                progress(self.done.fetch_add(1, Ordering::Relaxed) + 1);
-                Ok(())
-            })
+            }
+            drop(send);
+            let written = writer.join();
+            let status = child.wait();
+            let text = errors.join().unwrap_or_default();
+            rendered?;
+            let failed = |what: String| ffmpeg_error(format!("{what}: {}", text.trim()));
+            match written {
+                Ok(Ok(())) => {}
+                Ok(Err(e)) => return Err(failed(format!("writing to ffmpeg failed ({e})"))),
+                Err(_) => return Err(failed("the thread writing to ffmpeg failed".into())),
+            }
+            match status {
+                Ok(s) if s.success() => Ok(()),
+                Ok(s) => Err(failed(format!("ffmpeg failed ({s})"))),
+                Err(e) => Err(failed(format!("waiting for ffmpeg failed ({e})"))),
+            }
+        });
+        if let Err(e) = result {
+            let _ = std::fs::remove_file(&partial);
+            return Err(e);
+        }
+        std::fs::rename(&partial, mp4).map_err(|e| WriteError::new(mp4, e))?;
+        Ok(())
     }
 
     /// The extracted frames' truth without rendering (for [`super::simulate::lab_geometry`]),
@@ -622,7 +707,11 @@ impl<'a> Filming<'a> {
             jpeg_quality: None,
             ..self.options.render.clone()
         };
-        self.render(&camera, &shots, &dir, &render, progress)?;
+        if self.config.stream_full_rate {
+            self.stream(&camera, &shots, &out.join("video.mp4"), &render, progress)?;
+        } else {
+            self.render(&camera, &shots, &dir, &render, progress)?;
+        }
         let motion = VideoMotion {
             schema: VIDEO_MOTION_SCHEMA.into(),
             frame_rate: self.config.frame_rate,
@@ -649,7 +738,9 @@ impl<'a> Filming<'a> {
                 .collect(),
         };
         write_json(&dir.join("motion.json"), &motion)?;
-        let (mp4, note) = if self.config.encode {
+        let (mp4, note) = if self.config.stream_full_rate {
+            (Some("video.mp4".into()), None)
+        } else if self.config.encode {
             encode_mp4(&dir, self.config.frame_rate, &out.join("video.mp4"))
         } else {
             (None, Some("encoding not asked for".into()))
@@ -658,8 +749,72 @@ impl<'a> Filming<'a> {
             width,
             height,
             frames: shots.len(),
+            streamed: self.config.stream_full_rate,
             mp4,
             note,
+        })
+    }
+}
+
+/// What rendering a list of shots shares: each shot's focus-breathing factor and the ray grid
+/// of the widest of them.
+struct ShotRenderer<'a, 'v> {
+    video: &'a Filming<'v>,
+    camera: &'a BrownCamera,
+    render: &'a RenderConfig,
+    factors: Vec<f64>,
+    lowest: f64,
+    rays: RayGrid,
+}
+
+impl<'a, 'v> ShotRenderer<'a, 'v> {
+    fn new(
+        video: &'a Filming<'v>,
+        camera: &'a BrownCamera,
+        shots: &[Shot],
+        render: &'a RenderConfig,
+    ) -> Self {
+        let factors: Vec<f64> = shots
+            .par_iter()
+            .map(|s| video.breathing(s.time_s))
+            .collect();
+        let lowest = factors.iter().copied().fold(1.0, f64::min);
+        let rays = RayGrid::new(&breathing_camera(camera, lowest));
+        ShotRenderer {
+            video,
+            camera,
+            render,
+            factors,
+            lowest,
+            rays,
+        }
+    }
+
+    /// Renders shot `i` of the list (`shot`) at its time with the moving rolling-shutter camera.
+    fn frame(&self, i: usize, shot: &Shot) -> Result<Frame, SimError> {
+        let factor = self.factors[i];
+        let frame_camera = breathing_camera(self.camera, factor);
+        let shutter = self.video.shutter(shot.time_s);
+        let (t0, t1) = shutter.span();
+        let poses = PoseTable::new(|t| self.video.trajectory.cam_from_world(t), t0, t1);
+        let view = MovingView {
+            camera: &frame_camera,
+            rays: &self.rays,
+            ray_scale: self.lowest / factor,
+            poses: &poses,
+            shutter,
+        };
+        render_frame_moving(
+            self.video.scene,
+            &view,
+            self.video.gain,
+            self.render,
+            self.video.options.seed,
+            shot.noise_id,
+        )
+        .map_err(|source| SimError::Encode {
+            name: shot.name.clone(),
+            source,
         })
     }
 }
