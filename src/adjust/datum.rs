@@ -21,7 +21,9 @@ use rayon::prelude::*;
 
 use super::model::CameraModel;
 use super::problem::Problem;
-use super::solver::{Dims, Incidence, Rec, cholesky_scratch, linearise, pinned_indices, view};
+use super::solver::{
+    Dims, Incidence, Rec, cholesky_scratch, faer_par, linearise, pinned_indices, view,
+};
 use super::{AdjustError, Loss};
 use crate::geometry::pose::{Rigid3, skew};
 
@@ -485,7 +487,7 @@ fn constrained_inverse(
         llt::factor::cholesky_in_place(
             fa.as_mut(),
             Default::default(),
-            Par::Seq,
+            faer_par(),
             faer::dyn_stack::MemStack::new(&mut stack),
             Default::default(),
         )
@@ -501,7 +503,7 @@ fn constrained_inverse(
         llt::solve::solve_in_place(
             fa.as_ref(),
             rhs,
-            Par::Seq,
+            faer_par(),
             faer::dyn_stack::MemStack::new(&mut stack2),
         );
     }
