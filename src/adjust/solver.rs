@@ -579,9 +579,9 @@ fn sub_y_wt(y: &[f64], m: usize, w: &[f64], n: usize, rows: &mut [f64], n_r: usi
     }
 }
 
-/// faer's parallelism for the current rayon pool: its threads, or none on one thread.
-/// faer splits a factorisation's block updates by output block and keeps each sum's order,
-/// so the factor is the same to the bit on any thread count (`cholesky_is_the_same_on_any_thread_count`).
+/// faer's parallelism for the current rayon pool: its threads, or none on one thread. The
+/// factor and the solution are the same to the bit on 1, 2 and 3 threads
+/// (`cholesky_is_the_same_on_any_thread_count`, up to a 90-frame third-order system).
 pub(crate) fn faer_par() -> Par {
     match rayon::current_num_threads() {
         0 | 1 => Par::Seq,

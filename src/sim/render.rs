@@ -213,6 +213,20 @@ pub struct Frame {
     pub jpeg: Option<Vec<u8>>,
 }
 
+impl Frame {
+    /// Writes the frame to `path` atomically: its JPEG bytes when JPEG is on, else a PNG.
+    ///
+    /// # Errors
+    ///
+    /// The file cannot be written.
+    pub fn write(self, path: &std::path::Path) -> Result<(), crate::io::WriteError> {
+        match &self.jpeg {
+            Some(bytes) => crate::io::atomic::write_bytes_atomic(path, bytes),
+            None => crate::io::frames::write_png(path, &DynamicImage::ImageRgb8(self.image)),
+        }
+    }
+}
+
 /// Mixes seed, frame and row into an RNG seed (SplitMix64 finaliser).
 fn mix(a: u64, b: u64, c: u64) -> u64 {
     let mut z = a ^ b.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ c.wrapping_mul(0xD1B5_4A32_D192_ED03);

@@ -274,14 +274,7 @@ pub fn render_frames(
                 name: name.clone(),
                 source,
             })?;
-            let path = frames_dir.join(&name);
-            match &frame.jpeg {
-                Some(bytes) => write_bytes_atomic(&path, bytes)?,
-                None => crate::io::frames::write_png(
-                    &path,
-                    &image::DynamicImage::ImageRgb8(frame.image),
-                )?,
-            }
+            frame.write(&frames_dir.join(&name))?;
             let truth = frame_truth(
                 scene,
                 camera,

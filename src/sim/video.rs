@@ -46,6 +46,11 @@ use crate::io::WriteError;
 use crate::io::atomic::write_bytes_atomic;
 
 pub use crate::io::sidecar::{FRAMES_SCHEMA, FramesEntry, FramesSidecar, NeighbourEntry};
+/// The full-rate video's encoding (both routes, PNG or streamed, so they give the same video):
+/// H.264, quality CRF 18, yuv420p.
+const X264: [&str; 6] = ["-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18"];
+/// How to get ffmpeg, for the messages that miss it.
+const FFMPEG_INSTALL: &str = "Debian/Ubuntu: apt-get install ffmpeg";
 /// Schema tag of the full-rate video's `video/motion.json`.
 pub const VIDEO_MOTION_SCHEMA: &str = "pipemeasure.video/1";
 /// Noise-seed frame numbers of neighbours start here (main frames use their index).
@@ -423,13 +428,7 @@ impl<'a> Filming<'a> {
             if let Some(parent) = path.parent() {
                 std::fs::create_dir_all(parent).map_err(|e| WriteError::new(parent, e))?;
             }
-            match &frame.jpeg {
-                Some(bytes) => write_bytes_atomic(&path, bytes)?,
-                None => crate::io::frames::write_png(
-                    &path,
-                    &image::DynamicImage::ImageRgb8(frame.image),
-                )?,
-            }
+            frame.write(&path)?;
             progress(self.done.fetch_add(1, Ordering::Relaxed) + 1);
             Ok(())
         })
@@ -450,12 +449,21 @@ impl<'a> Filming<'a> {
         let ffmpeg_error = |reason: String| SimError::Ffmpeg { reason };
         let partial = mp4.with_extension("partial.mp4");
         let mut child = std::process::Command::new("ffmpeg")
-            .args(["-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24"])
+            .args([
+                "-y",
+                "-loglevel",
+                "error",
+                "-f",
+                "rawvideo",
+                "-pix_fmt",
+                "rgb24",
+            ])
             .arg("-s")
             .arg(format!("{}x{}", camera.width, camera.height))
             .arg("-framerate")
             .arg(format!("{}", self.config.frame_rate))
-            .args(["-i", "-", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18"])
+            .args(["-i", "-"])
+            .args(X264)
             .arg(&partial)
             .stdin(std::process::Stdio::piped())
             .stdout(std::process::Stdio::null())
@@ -463,7 +471,7 @@ impl<'a> Filming<'a> {
             .spawn()
             .map_err(|e| {
                 ffmpeg_error(format!(
-                    "cannot run ffmpeg ({e}); streaming the video needs it (Debian/Ubuntu: apt-get install ffmpeg)"
+                    "cannot run ffmpeg ({e}); streaming the video needs it ({FFMPEG_INSTALL})"
                 ))
             })?;
         let (Some(mut stdin), Some(mut stderr)) = (child.stdin.take(), child.stderr.take()) else {
@@ -819,8 +827,7 @@ impl<'a, 'v> ShotRenderer<'a, 'v> {
     }
 }
 
-/// Runs ffmpeg (an external program, like COLMAP) on `dir/frame_%05d.png`: H.264, quality
-/// CRF 18, yuv420p. Returns the file name, or why there is none.
+/// Runs ffmpeg (an external program, like COLMAP) on `dir/frame_%05d.png` ([`X264`]). Returns the file name, or why there is none.
 fn encode_mp4(dir: &Path, frame_rate: f64, mp4: &Path) -> (Option<String>, Option<String>) {
     let pattern = dir.join("frame_%05d.png");
     let out = std::process::Command::new("ffmpeg")
@@ -828,7 +835,7 @@ fn encode_mp4(dir: &Path, frame_rate: f64, mp4: &Path) -> (Option<String>, Optio
         .arg(format!("{frame_rate}"))
         .arg("-i")
         .arg(&pattern)
-        .args(["-c:v", "libx264", "-pix_fmt", "yuv420p", "-crf", "18"])
+        .args(X264)
         .arg(mp4)
         .output();
     match out {
@@ -843,10 +850,9 @@ fn encode_mp4(dir: &Path, frame_rate: f64, mp4: &Path) -> (Option<String>, Optio
         ),
         Err(_) => (
             None,
-            Some(
-                "ffmpeg is not on the PATH (Debian/Ubuntu: apt-get install ffmpeg); the PNG frames are kept"
-                    .into(),
-            ),
+            Some(format!(
+                "ffmpeg is not on the PATH ({FFMPEG_INSTALL}); the PNG frames are kept"
+            )),
         ),
     }
 }
