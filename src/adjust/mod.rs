@@ -16,6 +16,7 @@
 
 mod bal;
 mod datum;
+mod elimination;
 mod model;
 mod problem;
 mod solver;
@@ -56,6 +57,23 @@ pub struct AdjustConfig {
     pub initial_trust_radius: f64,
     /// Loss on each observation.
     pub loss: Loss,
+    /// Which unknowns each step's normal equations eliminate.
+    pub elimination: Elimination,
+}
+
+/// Which unknowns the damped normal equations eliminate before the dense Cholesky (Ceres'
+/// `linear_solver_ordering`): the same step either way, to rounding; the cost differs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum Elimination {
+    /// The one with fewer floating-point operations, counted from the problem's structure.
+    #[default]
+    Auto,
+    /// The points: a reduced camera system of the shared intrinsics and every camera's block
+    /// (BAL-like problems: few cameras, many points).
+    Points,
+    /// The cameras: a reduced point system of the shared intrinsics and every point (a
+    /// calibration video: many frames with rolling-shutter motions, a hundred targets).
+    Cameras,
 }
 
 impl Default for AdjustConfig {
@@ -67,6 +85,7 @@ impl Default for AdjustConfig {
             parameter_tolerance: 1e-8,
             initial_trust_radius: 1e4,
             loss: Loss::Squared,
+            elimination: Elimination::Auto,
         }
     }
 }

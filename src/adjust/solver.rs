@@ -24,9 +24,10 @@ use faer::{MatMut, Par};
 use nalgebra::{Matrix2x3, Matrix3, Vector3, Vector6};
 use rayon::prelude::*;
 
+use super::elimination::{CameraElimination, prefers_cameras};
 use super::model::{CameraModel, ModelJacobians};
 use super::problem::Problem;
-use super::{AdjustConfig, AdjustError, AdjustSummary, Loss, Termination};
+use super::{AdjustConfig, AdjustError, AdjustSummary, Elimination, Loss, Termination};
 use crate::geometry::pose::{Rigid3, retract, skew};
 
 /// Observations per chunk of the fixed-order parallel sums.
@@ -307,28 +308,28 @@ fn add_at_r(a: &[f64], m: usize, r: &[f64], out: &mut [f64]) {
 }
 
 /// Normal-equation blocks of one linearisation.
-struct Normal {
+pub(crate) struct Normal {
     /// Per point: V (3×3).
-    v: Vec<Matrix3<f64>>,
+    pub(crate) v: Vec<Matrix3<f64>>,
     /// Per point: b_p.
-    bp: Vec<Vector3<f64>>,
+    pub(crate) bp: Vec<Vector3<f64>>,
     /// Per point: W_gp (dg×3), row-major.
-    wg: Vec<f64>,
+    pub(crate) wg: Vec<f64>,
     /// Per (camera, point) pair ([`Incidence::pair_obs`]): `W = Σ jcᵀ jp` over its
     /// observations (dc×3), row-major.
-    wo: Vec<f64>,
+    pub(crate) wo: Vec<f64>,
     /// Per camera: U_i (dc×dc).
-    u: Vec<f64>,
+    pub(crate) u: Vec<f64>,
     /// Per camera: U_gi (dg×dc).
-    ugc: Vec<f64>,
+    pub(crate) ugc: Vec<f64>,
     /// Per camera: b_i.
-    bc: Vec<f64>,
+    pub(crate) bc: Vec<f64>,
     /// Shared: U_g (dg×dg) and b_g.
-    ug: Vec<f64>,
-    bg: Vec<f64>,
+    pub(crate) ug: Vec<f64>,
+    pub(crate) bg: Vec<f64>,
     /// Per camera: partial U_g and b_g (summed in camera order).
-    ug_part: Vec<f64>,
-    bg_part: Vec<f64>,
+    pub(crate) ug_part: Vec<f64>,
+    pub(crate) bg_part: Vec<f64>,
 }
 
 impl Normal {
@@ -423,6 +424,12 @@ impl Normal {
     }
 }
 
+/// The Levenberg–Marquardt damping `λ·D` of a diagonal entry `d` of `JᵀJ`: `D` clamped to
+/// Ceres' `[min_lm_diagonal, max_lm_diagonal]`.
+pub(crate) fn damped(lambda: f64, d: f64) -> f64 {
+    lambda * d.clamp(MIN_DIAGONAL, MAX_DIAGONAL)
+}
+
 /// Indices of the reduced system that are held fixed.
 pub(crate) fn pinned_indices<M: CameraModel>(p: &Problem<M>, dims: Dims) -> Vec<usize> {
     let mut out: Vec<usize> = p.fixed.global.clone();
@@ -455,7 +462,7 @@ fn assemble_reduced(
     let ok = vinv.par_iter_mut().zip(nrm.v.par_iter()).all(|(vi, v)| {
         let mut a = *v;
         for k in 0..3 {
-            a[(k, k)] += lambda * v[(k, k)].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
+            a[(k, k)] += damped(lambda, v[(k, k)]);
         }
         match a.try_inverse() {
             Some(inv) => {
@@ -478,7 +485,7 @@ fn assemble_reduced(
             for b in 0..dg {
                 s_g[a * n_r + b] = nrm.ug[a * dg + b];
             }
-            s_g[a * n_r + a] += lambda * nrm.ug[a * dg + a].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
+            s_g[a * n_r + a] += damped(lambda, nrm.ug[a * dg + a]);
             rhs_g[a] = -nrm.bg[a];
             for c in 0..dims.n_cam {
                 let ugc = &nrm.ugc[c * dg * dc..(c + 1) * dg * dc];
@@ -511,8 +518,7 @@ fn assemble_reduced(
             let col0 = dg + c * dc;
             for a in 0..dc {
                 rows[a * n_r + col0..a * n_r + col0 + dc].copy_from_slice(&u[a * dc..(a + 1) * dc]);
-                rows[a * n_r + col0 + a] +=
-                    lambda * u[a * dc + a].clamp(MIN_DIAGONAL, MAX_DIAGONAL);
+                rows[a * n_r + col0 + a] += damped(lambda, u[a * dc + a]);
                 rhs[a] = -nrm.bc[c * dc + a];
             }
             let mut y = [0.0; 3 * (6 + MAX_LOCAL)];
@@ -632,6 +638,63 @@ struct State {
     points: Vec<Vector3<f64>>,
 }
 
+/// The damped normal equations of one linearisation and their buffers: the reduced camera
+/// system (the points eliminated) or the reduced point system (the cameras eliminated,
+/// [`CameraElimination`]), whichever [`Elimination`] asks for.
+enum LinearSystem {
+    Points {
+        vinv: Vec<Matrix3<f64>>,
+        s: Vec<f64>,
+        stack: MemBuffer,
+    },
+    Cameras(Box<CameraElimination>),
+}
+
+impl LinearSystem {
+    fn new(elimination: Elimination, dims: Dims, inc: &Incidence, n_pts: usize) -> Self {
+        let cameras = match elimination {
+            Elimination::Auto => prefers_cameras(dims, inc, n_pts),
+            Elimination::Points => false,
+            Elimination::Cameras => true,
+        };
+        if cameras {
+            LinearSystem::Cameras(Box::new(CameraElimination::new(dims, inc, n_pts)))
+        } else {
+            LinearSystem::Points {
+                vinv: vec![Matrix3::zeros(); n_pts],
+                s: vec![0.0; dims.n_r * dims.n_r],
+                stack: cholesky_scratch(dims.n_r),
+            }
+        }
+    }
+
+    /// One damped step: the shared intrinsics' and cameras' part into `sol`, the points' into
+    /// `dp`; `false` when the damped system is not positive definite.
+    #[allow(clippy::too_many_arguments)]
+    fn solve(
+        &mut self,
+        dims: Dims,
+        inc: &Incidence,
+        nrm: &Normal,
+        lambda: f64,
+        pinned: &[usize],
+        sol: &mut [f64],
+        dp: &mut [Vector3<f64>],
+    ) -> bool {
+        match self {
+            LinearSystem::Points { vinv, s, stack } => {
+                let solved = assemble_reduced(dims, inc, nrm, lambda, pinned, vinv, s, sol)
+                    && cholesky_solve(s, dims.n_r, sol, stack);
+                if solved {
+                    back_substitute(dims, inc, nrm, vinv, sol, dp);
+                }
+                solved
+            }
+            LinearSystem::Cameras(e) => e.solve(dims, inc, nrm, lambda, pinned, sol, dp),
+        }
+    }
+}
+
 /// ½·Σ ρ(w·|r|²) over the observations, in fixed-order chunks; `None` if an observation that
 /// counts (positive weight, `active`) cannot be projected.
 fn total_cost<M: CameraModel>(p: &Problem<M>, active: &[bool], l: Loss) -> Option<f64> {
@@ -684,11 +747,9 @@ pub fn bundle_adjust<M: CameraModel>(
     let pinned = pinned_indices(problem, dims);
     let mut jac = vec![0.0; n_obs * dims.stride];
     let mut nrm = Normal::new(dims, n_pts, inc.num_pairs());
-    let mut vinv = vec![Matrix3::zeros(); n_pts];
-    let mut s = vec![0.0; dims.n_r * dims.n_r];
-    let mut rhs = vec![0.0; dims.n_r];
     let mut dp = vec![Vector3::zeros(); n_pts];
-    let mut stack = cholesky_scratch(dims.n_r);
+    let mut rhs = vec![0.0; dims.n_r];
+    let mut linear = LinearSystem::new(config.elimination, dims, &inc, n_pts);
 
     // Observations that can be projected at the start.
     let active: Vec<bool> = problem
@@ -741,16 +802,8 @@ pub fn bundle_adjust<M: CameraModel>(
         }
         iterations += 1;
         let lambda = 1.0 / radius;
-        let solved = assemble_reduced(
-            dims, &inc, &nrm, lambda, &pinned, &mut vinv, &mut s, &mut rhs,
-        ) && cholesky_solve(&mut s, dims.n_r, &mut rhs, &mut stack);
-        let step = if solved {
-            back_substitute(dims, &inc, &nrm, &vinv, &rhs, &mut dp);
-            Some(())
-        } else {
-            None
-        };
-        let accepted = step.and_then(|()| {
+        let solved = linear.solve(dims, &inc, &nrm, lambda, &pinned, &mut rhs, &mut dp);
+        let accepted = solved.then_some(()).and_then(|()| {
             let predicted = predicted_decrease(dims, problem, &active, &jac, &rhs, &dp);
             if predicted.is_nan() || predicted <= 0.0 {
                 return None;
