@@ -1,7 +1,7 @@
 //! The bundle adjustment engine (layer 2): Levenberg–Marquardt over poses, 3D points and
-//! intrinsics with the Schur complement on the points, a free-network datum by inner
-//! constraints, and the a-posteriori precision of the intrinsics (paper, "Self-Calibrating
-//! Bundle Adjustment"; docs/math.md "Schur", "Datum").
+//! intrinsics with the Schur complement on the points or the cameras, a free-network datum by
+//! inner constraints, and the a-posteriori precision of the intrinsics (paper,
+//! "Self-Calibrating Bundle Adjustment"; docs/math.md "Schur", "Datum").
 //!
 //! It is generic over the camera model ([`CameraModel`]): the `brown` model with shared
 //! intrinsics for calibration ([`BrownModel`]), BAL's per-camera model for the public benchmark

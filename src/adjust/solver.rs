@@ -1,5 +1,6 @@
 //! Levenberg–Marquardt with the Schur complement on the points (Triggs et al. 2000, §6.1;
-//! docs/math.md "Schur"), the reduced camera system solved by faer's dense Cholesky.
+//! docs/math.md "Schur"), the reduced camera system solved by faer's dense Cholesky, or on
+//! the cameras ([`super::elimination`]) when that costs fewer operations.
 //!
 //! Each iteration linearises once, then tries damped steps until one is accepted:
 //!
