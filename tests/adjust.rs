@@ -5,9 +5,9 @@
 
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
 use pipemeasure::adjust::{
-    AdjustConfig, BrownModel, Elimination, Observation, PrecisionRequest, Problem, Similarity,
-    apply_similarity, bundle_adjust, free_network_datum, inner_constraint_basis, precision,
-    problem_from_bal, similarity_from_points,
+    AdjustConfig, AdjustSummary, BrownModel, Elimination, Observation, PrecisionRequest, Problem,
+    Similarity, apply_similarity, bundle_adjust, free_network_datum, inner_constraint_basis,
+    precision, problem_from_bal, similarity_from_points,
 };
 use pipemeasure::calibrate::jackknife::{JACKKNIFE_GROUPS, frame_jackknife};
 use pipemeasure::camera::Intrinsics;
@@ -194,6 +194,17 @@ fn noise_free_network_converges_to_the_truth() {
     }
 }
 
+/// Both adjustments ended usable at the same cost (1e-9 of it).
+fn assert_same_minimum(sa: &AdjustSummary, sb: &AdjustSummary) {
+    assert!(sa.is_usable() && sb.is_usable(), "{sa:?} {sb:?}");
+    assert!(
+        (sa.final_cost - sb.final_cost).abs() <= 1e-9 * sa.final_cost,
+        "{} vs {}",
+        sa.final_cost,
+        sb.final_cost
+    );
+}
+
 /// Observations of one point by one camera share one Schur block (the solver sums them per
 /// (camera, point) pair, as a video frame's neighbours observe the same target at other
 /// times): splitting each observation into two copies of half its weight, the copies placed
@@ -241,13 +252,7 @@ fn split_observations_adjust_as_the_whole() {
     let (mut a, mut b) = (whole, split);
     let sa = bundle_adjust(&mut a, &tight()).unwrap();
     let sb = bundle_adjust(&mut b, &tight()).unwrap();
-    assert!(sa.is_usable() && sb.is_usable(), "{sa:?} {sb:?}");
-    assert!(
-        (sa.final_cost - sb.final_cost).abs() <= 1e-9 * sa.final_cost,
-        "{} vs {}",
-        sa.final_cost,
-        sb.final_cost
-    );
+    assert_same_minimum(&sa, &sb);
 }
 
 /// Every value a problem adjusts, flattened: shared and per-camera values, poses (translation,
@@ -331,13 +336,7 @@ fn eliminating_the_cameras_gives_the_same_steps() {
     let (mut a, mut b) = (start.clone(), start.clone());
     let sa = bundle_adjust(&mut a, &with(Elimination::Points, tight())).unwrap();
     let sb = bundle_adjust(&mut b, &with(Elimination::Cameras, tight())).unwrap();
-    assert!(sa.is_usable() && sb.is_usable(), "{sa:?} {sb:?}");
-    assert!(
-        (sa.final_cost - sb.final_cost).abs() <= 1e-9 * sa.final_cost,
-        "{} vs {}",
-        sa.final_cost,
-        sb.final_cost
-    );
+    assert_same_minimum(&sa, &sb);
     for (k, (x, y)) in a.global.iter().zip(&b.global).enumerate() {
         assert!(
             (x - y).abs() <= 1e-9 * x.abs().max(1.0),

@@ -329,8 +329,8 @@ pub(crate) struct Normal {
     pub(crate) ug: Vec<f64>,
     pub(crate) bg: Vec<f64>,
     /// Per camera: partial U_g and b_g (summed in camera order).
-    pub(crate) ug_part: Vec<f64>,
-    pub(crate) bg_part: Vec<f64>,
+    ug_part: Vec<f64>,
+    bg_part: Vec<f64>,
 }
 
 impl Normal {
