@@ -394,8 +394,9 @@ fn video_lab(out: &Path, width: u32, frames: usize, video: VideoConfig, seed: u6
 }
 
 /// ω and ν from one-sided second-order differences of the truth's trajectory after t
-/// (independent of the analytic velocities the truth records; one-sided because the frame
-/// times are knots, where the path is only C²): with φ(s) = log(R(t + s)·R(t)ᵀ),
+/// (independent of the analytic velocities the truth records; one-sided because some frame
+/// times — the first, the last and those beside a turn without a pause — are knots, where the
+/// path is only C²): with φ(s) = log(R(t + s)·R(t)ᵀ),
 /// ω ≈ (4·φ(h) − φ(2h))/2h, and Ṫ likewise; error O(h²·jerk) ≈ 1e-8.
 fn differences(tr: &Trajectory, t: f64) -> (Vector3<f64>, Vector3<f64>) {
     let h = 1e-5;

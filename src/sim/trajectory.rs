@@ -32,11 +32,24 @@
 //! The Hermite curves are *quintic* with zero second derivative at both knots, not cubic: a
 //! cubic's acceleration at a knot is set by the segment's displacement, and the lab's 90° turn
 //! from portrait to landscape within one interval then accelerates the camera at ≈ 30 rad/s²
-//! at the frames beside it (14 °/s of change within one 8 ms exposure). With the quintic the
-//! tremor-free motion has no acceleration at the stations and the pauses (exactly at a
-//! segment's start; at its end up to a term of order |φᵇ|·|ω|², below 0.01 rad/s²), so the
-//! motion within a frame departs from constant velocity by the tremor and the jerk of the path,
-//! as a steady hand's does.
+//! at the frames beside it (14 °/s of change within one 8 ms exposure).
+//!
+//! A quintic knot is only C²: the jerk jumps there, and a knot at a station puts that jump
+//! exactly at the time the frame is taken — something no hand does (it does not know when the
+//! 1 fps extraction samples it), and exactly where a calibration expands each frame's motion
+//! (over ±1/30 s to the neighbouring video frames the jump left 0.04 px RMS that no smooth
+//! motion fits at 4K, and 0.13 px of camera error on the iPhone 11 lab from the true
+//! projections alone). So a station with a **pause on both sides** is passed by *one movement
+//! from rest to rest*: from the end of the pause before it to the start of the pause after it,
+//! the rotation (in the station's tangent space, `R(t) = exp([φ(t)]×)·Rˢ`) and the centre are
+//! polynomials of degree 8 with the station's pose and velocities and no acceleration at the
+//! station (the steady hand at a viewpoint, as with the knots; left free, the polynomial of
+//! degree 7 accelerated some frames by up to 460 °/s², 9 °/s within one readout) and zero
+//! velocity and acceleration at both rests (the rests' jerk jumps, as a movement starting from
+//! rest does; Flash & Hogan, "The coordination of arm movements", J. Neurosci. 1985). The
+//! motion is then smooth through such a station. Stations beside a turn without a pause, and
+//! the first and the last, keep the quintic knots: no acceleration at them (exactly at a
+//! segment's start; at its end up to a term of order |φᵇ|·|ω|², below 0.01 rad/s²).
 //!
 //! Hand tremor multiplies the rotation on the left (about axes fixed in the phone):
 //! `R(t) = exp([δ(t)]×)·R_h(t)` with `δ(t) = Σᵢ aᵢ·uᵢ·sin(2π·fᵢ·t + ψᵢ)`, a few sinusoids of
@@ -142,6 +155,12 @@ pub struct Knot {
     pub angular_velocity: [f64; 3],
     /// Velocity of the camera centre Ċ (world frame, m/s).
     pub centre_velocity: [f64; 3],
+    /// A pause's start or end: the camera rests there (no velocity, no acceleration). A
+    /// station between two rest knots is passed by one smooth movement from rest to rest
+    /// ([`Trajectory::motion`]); absent (false) in truth files written before it existed,
+    /// which are then evaluated as they were written.
+    #[serde(default)]
+    pub rest: bool,
 }
 
 /// One sinusoid of the hand tremor: `δ(t) += amplitude·axis·sin(2π·frequency·t + phase)`.
@@ -261,6 +280,7 @@ impl Trajectory {
                 centre: camera_centre(cam_from_world).coords.into(),
                 angular_velocity: [0.0; 3],
                 centre_velocity: [0.0; 3],
+                rest: false,
             }],
             tremor: Vec::new(),
         }
@@ -326,6 +346,7 @@ impl Trajectory {
                 angular_velocity: omega_h.into(),
                 // ν = −R·Ċ at the station.
                 centre_velocity: (-(pose.rotation.inverse() * nu)).into(),
+                rest: false,
             });
         }
         if config.pause_s > 0.0 && poses.len() > 1 {
@@ -347,6 +368,7 @@ impl Trajectory {
                         centre: s.centre.into(),
                         angular_velocity: [0.0; 3],
                         centre_velocity: [0.0; 3],
+                        rest: true,
                     });
                 }
             }
@@ -391,8 +413,25 @@ impl Trajectory {
             return extrapolate(&knots[last], t - knots[last].time_s);
         }
         // knots[i].time_s ≤ t < knots[i + 1].time_s.
-        let i = knots.partition_point(|k| k.time_s <= t) - 1;
-        hermite(&knots[i], &knots[i + 1], t)
+        // (A NaN time falls through the comparisons above: the first segment.)
+        let i = knots.partition_point(|k| k.time_s <= t).saturating_sub(1);
+        self.movement(i)
+            .and_then(|(a, s, b)| through_station(a, s, b, t))
+            .unwrap_or_else(|| hermite(&knots[i], &knots[i + 1], t))
+    }
+
+    /// The movement from rest to rest through a station that the segment starting at knot `i`
+    /// belongs to: (rest, station, rest), when the station has a pause on both sides.
+    fn movement(&self, i: usize) -> Option<(&Knot, &Knot, &Knot)> {
+        let k = &self.knots;
+        let (here, next) = (k.get(i)?, k.get(i + 1)?);
+        if here.rest && !next.rest && k.get(i + 2).is_some_and(|b| b.rest) {
+            return Some((here, next, &k[i + 2]));
+        }
+        if !here.rest && next.rest && i > 0 && k[i - 1].rest {
+            return Some((&k[i - 1], here, next));
+        }
+        None
     }
 
     /// The pose and velocities at time t (seconds).
@@ -422,6 +461,67 @@ impl Trajectory {
     pub fn centre(&self, t: f64) -> Point3<f64> {
         Point3::from(self.state(t).centre)
     }
+}
+
+/// The tremor-free state at time t of the movement from the rest knot `a` through the station
+/// `s` to the rest knot `b`: in the station's tangent space, `R(t) = exp([φ(t)]×)·Rˢ` and the
+/// centre, each a polynomial of degree 8 in `t − tˢ` with the station's pose and velocities and
+/// no acceleration at `tˢ` (φ = 0, φ̇ = ωˢ since `J_l(0) = I`, φ̈ = 0) and the rest knots'
+/// poses with zero velocity and acceleration at both ends — smooth (C^∞) through the station,
+/// where the frame is taken: a hand does not know when the video's 1 fps extraction samples
+/// it. `None` only if the 6 × 6
+/// system is singular (the knots' times coincide; never for a validated pause).
+fn through_station(a: &Knot, s: &Knot, b: &Knot, t: f64) -> Option<State> {
+    let span = (s.time_s - a.time_s).max(b.time_s - s.time_s);
+    let (xa, xb, x) = (
+        (a.time_s - s.time_s) / span,
+        (b.time_s - s.time_s) / span,
+        (t - s.time_s) / span,
+    );
+    // Rows: value, first and second derivative at xa, then at xb, of the powers x³…x⁸ (no x²
+    // term: no acceleration at the station).
+    let mut m = nalgebra::Matrix6::zeros();
+    for (r, &xe) in [xa, xb].iter().enumerate() {
+        for (c, i) in (3..9).enumerate() {
+            let fi = f64::from(i);
+            m[(3 * r, c)] = xe.powi(i);
+            m[(3 * r + 1, c)] = fi * xe.powi(i - 1);
+            m[(3 * r + 2, c)] = fi * (fi - 1.0) * xe.powi(i - 2);
+        }
+    }
+    let rs = quat(s.qvec);
+    let (cs, w1, v1) = (
+        Vector3::from(s.centre),
+        Vector3::from(s.angular_velocity) * span,
+        Vector3::from(s.centre_velocity) * span,
+    );
+    // Right-hand sides, one column per channel: φ (3), then the centre's offset from the
+    // station's (3); the linear terms (x·w1, x·v1) moved to the right.
+    let mut rhs = nalgebra::Matrix6::zeros();
+    for (r, (knot, xe)) in [(a, xa), (b, xb)].into_iter().enumerate() {
+        let phi = (quat(knot.qvec) * rs.inverse()).scaled_axis();
+        let offset = Vector3::from(knot.centre) - cs;
+        for axis in 0..3 {
+            rhs[(3 * r, axis)] = phi[axis] - w1[axis] * xe;
+            rhs[(3 * r + 1, axis)] = -w1[axis];
+            rhs[(3 * r, 3 + axis)] = offset[axis] - v1[axis] * xe;
+            rhs[(3 * r + 1, 3 + axis)] = -v1[axis];
+        }
+    }
+    let coeffs = m.lu().solve(&rhs)?;
+    let (mut value, mut rate) = (nalgebra::Vector6::zeros(), nalgebra::Vector6::zeros());
+    for (c, i) in (3..9).enumerate() {
+        value += coeffs.row(c).transpose() * x.powi(i);
+        rate += coeffs.row(c).transpose() * (f64::from(i) * x.powi(i - 1));
+    }
+    let phi = value.fixed_rows::<3>(0) + w1 * x;
+    let phi_dot = (rate.fixed_rows::<3>(0) + w1) / span;
+    Some(State {
+        rotation: UnitQuaternion::from_scaled_axis(phi) * rs,
+        centre: cs + value.fixed_rows::<3>(3) + v1 * x,
+        angular_velocity: left_jacobian(&phi) * phi_dot,
+        centre_velocity: (rate.fixed_rows::<3>(3) + v1) / span,
+    })
 }
 
 /// The quintic Hermite state between knots `a` and `b` at time t, zero second derivative at
@@ -591,43 +691,79 @@ mod tests {
     }
 
     #[test]
-    fn the_tremor_free_motion_does_not_accelerate_at_the_stations() {
-        // Even beside the 90° turn from portrait to landscape (stations 3 and 4 of 8).
+    fn the_motion_is_smooth_through_the_stations_and_rests_at_the_pauses() {
+        // Stations 3 and 4 of 8 frame the 90° turn from portrait to landscape, which has no
+        // pause: they are quintic knots. Stations 1, 2, 5 and 6 have a pause on both sides and
+        // are passed by one movement from rest to rest.
         let poses = lab_poses(8);
         let config = MotionConfig {
             tremor_deg_s: 0.0,
             ..Default::default()
         };
         let tr = Trajectory::through(&poses, 1.0, &config, 12);
-        // Small steps: the jerk jumps at the knots (error h·Δjerk/4).
-        let h = 1e-6;
-        let mut mid_segment: f64 = 0.0;
-        for k in 0..8 {
-            let t = f64::from(k);
-            let accel = |t: f64| {
-                let (a, b) = (tr.motion(t - h), tr.motion(t + h));
-                (
-                    (b.angular_velocity - a.angular_velocity).norm() / (2.0 * h),
-                    (b.linear_velocity - a.linear_velocity).norm() / (2.0 * h),
-                )
+        let w = |t: f64| tr.motion(t).angular_velocity;
+        let v = |t: f64| tr.motion(t).linear_velocity;
+        // One-sided second differences of ω from either side of t, (2f₀ − 5f₁ + 4f₂ − f₃)/h²:
+        // ω̈(t) (the jerk of the rotation) to O(h²·|ω⁗|). At a knot of quintics the jerk jumps
+        // between the two sides.
+        let h = 1e-4;
+        let jerks = |f: &dyn Fn(f64) -> Vector3<f64>, t: f64| {
+            let side = |s: f64| {
+                (f(t) * 2.0 - f(t + s * h) * 5.0 + f(t + 2.0 * s * h) * 4.0 - f(t + 3.0 * s * h))
+                    / (h * h)
             };
-            let (w_dot, v_dot) = accel(t);
-            // The end-of-segment residual |φᵇ|·|ω|² (≤ 1.6 rad × (0.16 rad/s)²) and the change
-            // of ν = −R·Ċ with the rotation (|ω|·|Ċ| ≤ 0.16 × 0.15): small.
-            assert!(
-                w_dot < 0.05,
-                "station {k}: angular acceleration {w_dot} rad/s²"
+            (side(-1.0), side(1.0))
+        };
+        let mut largest_jump = [0.0f64; 2];
+        for k in [1, 2, 5, 6] {
+            let t = f64::from(k);
+            let (left, right) = jerks(&w, t);
+            println!(
+                "station {k}: jerk {:.3} | {:.3} rad/s³",
+                left.norm(),
+                right.norm()
             );
-            assert!(
-                v_dot < 0.03,
-                "station {k}: linear acceleration {v_dot} m/s²"
-            );
-            if k == 3 {
-                mid_segment = accel(t + 0.2).0;
+            largest_jump[0] = largest_jump[0].max((left - right).norm());
+            let (left, right) = jerks(&v, t);
+            largest_jump[1] = largest_jump[1].max((left - right).norm());
+        }
+        println!("largest jump of the jerk at a station: {largest_jump:?}");
+        assert!(largest_jump[0] < 0.01, "{largest_jump:?}");
+        assert!(largest_jump[1] < 0.01, "{largest_jump:?}");
+        // The quintic knots beside the turn, measured the same way, do jump: the test can fail.
+        let (left, right) = jerks(&w, 3.0);
+        println!("station 3 (quintic knot): jerk {left} | {right}");
+        assert!((left - right).norm() > 1.0, "{left} | {right}");
+        // Rest knots: no velocity and no acceleration: ω and ν grow as ½·jerk·(t − tʳ)² away
+        // from them, four times over twice the distance (twice with an acceleration).
+        let rests: Vec<f64> = tr
+            .knots
+            .iter()
+            .filter(|k| k.rest)
+            .map(|k| k.time_s)
+            .collect();
+        assert_eq!(rests.len(), 2 * 6);
+        for t in rests {
+            assert!(w(t).norm() < 1e-12 && v(t).norm() < 1e-12, "rest at {t}");
+            for dt in [-h, h] {
+                for f in [&w as &dyn Fn(f64) -> Vector3<f64>, &v] {
+                    let (near, far) = (f(t + dt).norm(), f(t + 2.0 * dt).norm());
+                    // Inside the pause both are zero.
+                    assert!(
+                        far == 0.0 || (far / near - 4.0).abs() < 0.1,
+                        "growth {} away from the rest at {t}",
+                        far / near
+                    );
+                }
             }
         }
-        // Between the stations of the turn the camera does accelerate.
-        assert!(mid_segment > 1.0, "{mid_segment} rad/s² within the turn");
+        // No station accelerates (beside the turn the quintic knots, elsewhere the movement's
+        // own constraint); within the turn the camera does.
+        let accel = |t: f64| (w(t + 1e-6) - w(t - 1e-6)).norm() / 2e-6;
+        for t in (0..8).map(f64::from) {
+            assert!(accel(t) < 0.05, "station {t}: {} rad/s²", accel(t));
+        }
+        assert!(accel(3.2) > 1.0, "{} rad/s² within the turn", accel(3.2));
     }
 
     #[test]
