@@ -2,25 +2,27 @@
 //! target projections (no rendering, no detection): `cargo run --release --example
 //! video_truth_adjust -- LAB/truth.json [NOISE_PX] [NEIGHBOUR_WEIGHT]`, or with
 //! `sim:PRESET:WIDTH:TREMOR_DEG_S:SEED[:EXPOSURE_MS]` in place of the truth file to simulate
-//! the lab's truth (`simulate lab --video --neighbours`) without rendering it. Each frame and its neighbours see the
-//! targets' exact rolling-shutter projections (plus NOISE_PX of Gaussian noise, default 0), the
+//! the lab's truth (`simulate lab --video --neighbours`) without rendering it. Each frame and
+//! its neighbours see the targets' exact rolling-shutter projections (plus NOISE_PX of Gaussian noise, default 0), the
 //! adjustment is the calibration's (third-order motions, readout free, c u0 v0 k1 k2 p1 p2),
 //! and the camera is scored against the truth over the frame: what is left is the motion
 //! model's own error.
 #![allow(missing_docs)]
 
-use std::collections::HashMap;
 use std::path::PathBuf;
 
-use nalgebra::{Vector2, Vector3};
+use nalgebra::Vector2;
 use pipemeasure::adjust::{AdjustConfig, BrownModel, Observation, Problem, bundle_adjust};
 use pipemeasure::calibrate::checks::{projection_difference, projection_difference_rotated};
 use pipemeasure::camera::rolling::MotionOrder;
 use pipemeasure::camera::{Intrinsics, Term};
+use pipemeasure::experiments::calibration::{
+    TRUTH_MIN_SEMI_MINOR_PX, truth_target_index, truth_target_points,
+};
 use pipemeasure::sim::lab::LabConfig;
 use pipemeasure::sim::simulate::{SimulateOptions, lab_geometry};
 use pipemeasure::sim::trajectory::MotionConfig;
-use pipemeasure::sim::truth::{TargetView, Truth};
+use pipemeasure::sim::truth::Truth;
 use pipemeasure::sim::video::VideoConfig;
 use rand::{Rng, SeedableRng};
 
@@ -65,27 +67,8 @@ fn main() -> anyhow::Result<()> {
         let (a, b): (f64, f64) = (rng.random_range(1e-12..1.0), rng.random_range(0.0..1.0));
         (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
     };
-    let index_of: HashMap<u32, usize> = truth
-        .targets
-        .iter()
-        .enumerate()
-        .map(|(k, t)| (t.id, k))
-        .collect();
-    let usable = |t: &TargetView| t.fitted.b >= 4.0 && index_of.contains_key(&t.id);
-    let mut seen = vec![0usize; truth.targets.len()];
-    for f in &truth.frames {
-        for t in f.targets.iter().filter(|t| usable(t)) {
-            seen[index_of[&t.id]] += 1;
-        }
-    }
-    let mut point_of = vec![usize::MAX; truth.targets.len()];
-    let mut points = Vec::new();
-    for (p, t) in truth.targets.iter().enumerate() {
-        if seen[p] >= 3 {
-            point_of[p] = points.len();
-            points.push(Vector3::from(t.centre));
-        }
-    }
+    let index_of = truth_target_index(&truth);
+    let (point_of, points) = truth_target_points(&truth);
     let mut observations = Vec::new();
     let mut has_neighbours = Vec::new();
     for (k, f) in truth.frames.iter().enumerate() {
@@ -96,11 +79,14 @@ fn main() -> anyhow::Result<()> {
         }
         has_neighbours.push(f.neighbours.len() == 2);
         for (dt, weight, targets) in views {
-            for t in targets.iter().filter(|t| usable(t)) {
-                let p = point_of[index_of[&t.id]];
-                if p == usize::MAX {
+            for t in targets.iter() {
+                let Some(p) = index_of
+                    .get(&t.id)
+                    .filter(|_| t.fitted.b >= TRUTH_MIN_SEMI_MINOR_PX)
+                    .and_then(|&k| point_of[k])
+                else {
                     continue;
-                }
+                };
                 observations.push(Observation {
                     camera: k,
                     point: p,

@@ -185,52 +185,81 @@ pub fn score(s: &CalibrationScenario, cal: &Calibration) -> CalibrationScore {
     }
 }
 
-/// The target adjustment of a simulated lab built from its truth: true poses and target
-/// centres, observations at the true projected centres (targets with a semi-minor axis of at
-/// least 4 px, seen at least three times) plus `noise_px` Gaussian noise, and start intrinsics
-/// off by 1 % in c and 5 px in u0, v0 with no distortion. For the selection tests and the
-/// adjustment benchmark.
+/// The semi-minor axis (px) from which a true target view counts in [`truth_target_points`].
+pub const TRUTH_MIN_SEMI_MINOR_PX: f64 = 4.0;
+
+/// The adjustment points of a simulated lab's truth: the targets with a semi-minor axis of at
+/// least [`TRUTH_MIN_SEMI_MINOR_PX`] in at least three frames. Returns, per truth target (in
+/// `truth.targets` order), its index among the points (`None` when left out), and the points
+/// (true centres).
 #[must_use]
-pub fn truth_target_problem(truth: &Truth, noise_px: f64, seed: u64) -> Problem<BrownModel> {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let mut observations = Vec::new();
+pub fn truth_target_points(truth: &Truth) -> (Vec<Option<usize>>, Vec<Vector3<f64>>) {
+    let index_of = truth_target_index(truth);
     let mut seen = vec![0usize; truth.targets.len()];
-    let index_of: std::collections::HashMap<u32, usize> = truth
+    for t in truth.frames.iter().flat_map(|f| &f.targets) {
+        if let Some(&p) = index_of.get(&t.id)
+            && t.fitted.b >= TRUTH_MIN_SEMI_MINOR_PX
+        {
+            seen[p] += 1;
+        }
+    }
+    let mut points = Vec::new();
+    let point_of = truth
+        .targets
+        .iter()
+        .zip(&seen)
+        .map(|(t, &n)| {
+            (n >= 3).then(|| {
+                points.push(Vector3::from(t.centre));
+                points.len() - 1
+            })
+        })
+        .collect();
+    (point_of, points)
+}
+
+/// Target id → index in `truth.targets`.
+#[must_use]
+pub fn truth_target_index(truth: &Truth) -> std::collections::HashMap<u32, usize> {
+    truth
         .targets
         .iter()
         .enumerate()
         .map(|(k, t)| (t.id, k))
-        .collect();
+        .collect()
+}
+
+/// The target adjustment of a simulated lab built from its truth: true poses and target
+/// centres ([`truth_target_points`]), observations at the true projected centres plus
+/// `noise_px` Gaussian noise, and start intrinsics off by 1 % in c and 5 px in u0, v0 with no
+/// distortion. For the selection tests and the adjustment benchmark.
+#[must_use]
+pub fn truth_target_problem(truth: &Truth, noise_px: f64, seed: u64) -> Problem<BrownModel> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let index_of = truth_target_index(truth);
+    let (point_of, points) = truth_target_points(truth);
+    let mut observations = Vec::new();
     for (k, f) in truth.frames.iter().enumerate() {
         for t in &f.targets {
             let Some(&p) = index_of.get(&t.id) else {
                 continue;
             };
-            if t.fitted.b < 4.0 {
+            if t.fitted.b < TRUTH_MIN_SEMI_MINOR_PX {
                 continue;
             }
-            seen[p] += 1;
-            observations.push(Observation {
-                camera: k,
-                point: p,
-                uv: Vector2::new(t.centre_px[0], t.centre_px[1])
-                    + noise_px * Vector2::new(gaussian(&mut rng), gaussian(&mut rng)),
-                weight: 1.0,
-                time_offset_s: 0.0,
-            });
+            // The noise is drawn for every usable view, kept or not (the draws as before).
+            let uv = Vector2::new(t.centre_px[0], t.centre_px[1])
+                + noise_px * Vector2::new(gaussian(&mut rng), gaussian(&mut rng));
+            if let Some(point) = point_of[p] {
+                observations.push(Observation {
+                    camera: k,
+                    point,
+                    uv,
+                    weight: 1.0,
+                    time_offset_s: 0.0,
+                });
+            }
         }
-    }
-    observations.retain(|o| seen[o.point] >= 3);
-    let mut index = vec![usize::MAX; truth.targets.len()];
-    let mut points = Vec::new();
-    for (p, t) in truth.targets.iter().enumerate() {
-        if seen[p] >= 3 {
-            index[p] = points.len();
-            points.push(Vector3::from(t.centre));
-        }
-    }
-    for o in &mut observations {
-        o.point = index[o.point];
     }
     let t = truth.camera.intrinsics;
     let start = Intrinsics::pinhole(t.c * 1.01, t.u0 + 5.0, t.v0 - 5.0);
