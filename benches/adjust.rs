@@ -3,8 +3,8 @@
 //! adjustment of a simulated 90-frame 4K lab (P30 preset, true centres + 0.01 px noise, c,
 //! u0, v0, k1, k2, p1, p2 free), also with the rolling-shutter model (a motion per frame, 540
 //! unknowns more, readout held: the selection's rolling-shutter candidate; issue 19's goal
-//! ≤ 0.5 s), and the readout time's estimate over the neighbouring video frames (third-order
-//! motions, 18 per frame, 1620 unknowns, each frame's targets also seen `±1/30 s` away,
+//! ≤ 0.5 s), and the readout time's estimate over the neighbouring video frames (fourth-order
+//! motions, 24 per frame, 2160 unknowns, each frame's targets also seen `±1/30 s` away,
 //! readout free: `calibrate::selection::estimate_readout_time`'s adjustment), and the grouped
 //! jackknife over the frames that then checks its covariance (`calibrate::jackknife`, ten
 //! adjustments of nine tenths of the frames). Reading and building the problems is outside the
@@ -18,7 +18,8 @@ use pipemeasure::adjust::{
 };
 use pipemeasure::calibrate::jackknife::frame_jackknife;
 use pipemeasure::camera::Intrinsics;
-use pipemeasure::camera::rolling::{self, Motion, MotionOrder, RowTiming};
+use pipemeasure::calibrate::selection::NEIGHBOUR_MOTION_ORDER;
+use pipemeasure::camera::rolling::{self, Motion, RowTiming};
 use pipemeasure::experiments::calibration::truth_target_problem;
 use pipemeasure::io::bal::read_bal;
 use pipemeasure::sim::lab::LabConfig;
@@ -61,7 +62,7 @@ fn adjust(c: &mut Criterion) {
         });
     });
     let neighbours = neighbour_problem(&lab_problem, &truth.camera.intrinsics);
-    group.bench_function("lab-p30-4k-90-neighbours-third-order", |b| {
+    group.bench_function("lab-p30-4k-90-neighbours-fourth-order", |b| {
         b.iter(|| {
             let mut p = neighbours.clone();
             bundle_adjust(&mut p, &AdjustConfig::default()).unwrap()
@@ -82,7 +83,8 @@ fn adjust(c: &mut Criterion) {
 /// under a 20 ms readout, in each frame and in its two neighbours `±1/30 s` away (exact
 /// rolling-shutter projections, 0.01 px of noise; the neighbours weighted 0.4 as the variance
 /// components put them), started as the selection leaves it: first-order motions at their
-/// truth, higher orders at zero, readout 25 ms, the intrinsics of `start`'s problem.
+/// truth, higher orders (to the calibration's [`NEIGHBOUR_MOTION_ORDER`]) at zero, readout
+/// 25 ms, the intrinsics of `start`'s problem.
 fn neighbour_problem(start: &Problem<BrownModel>, camera: &Intrinsics) -> Problem<BrownModel> {
     use rand::{Rng, SeedableRng};
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(19);
@@ -107,6 +109,7 @@ fn neighbour_problem(start: &Problem<BrownModel>, camera: &Intrinsics) -> Proble
             linear_acceleration: unit(0.5),
             angular_jerk: unit(600f64.to_radians()),
             linear_jerk: unit(10.0),
+            ..Motion::default()
         })
         .collect();
     let mut noise = rand_chacha::ChaCha8Rng::seed_from_u64(20);
@@ -133,16 +136,17 @@ fn neighbour_problem(start: &Problem<BrownModel>, camera: &Intrinsics) -> Proble
         }
     }
     let first = start.with_rolling_shutter(height, 0.025);
-    let mut third = first.with_motion_order(MotionOrder::Third, &vec![true; start.num_cameras()]);
-    for (local, m) in third
+    let mut higher =
+        first.with_motion_order(NEIGHBOUR_MOTION_ORDER, &vec![true; start.num_cameras()]);
+    for (local, m) in higher
         .local
-        .chunks_mut(MotionOrder::Third.values())
+        .chunks_mut(NEIGHBOUR_MOTION_ORDER.values())
         .zip(&motions)
     {
         local[..6].copy_from_slice(&m.values()[..6]);
     }
-    third.observations = observations;
-    third
+    higher.observations = observations;
+    higher
 }
 
 criterion_group!(benches, adjust);

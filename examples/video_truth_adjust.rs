@@ -116,7 +116,13 @@ fn main() -> anyhow::Result<()> {
         })
         .collect();
     let first = Problem::new(model, cameras, local, global, points, observations)?;
-    let mut problem = first.with_motion_order(MotionOrder::Third, &has_neighbours);
+    // MOTION_ORDER=4 tries fourth-order motions (the calibration's are third order).
+    let order = match std::env::var("MOTION_ORDER").as_deref() {
+        Ok("4") => MotionOrder::Fourth,
+        Ok("2") => MotionOrder::Second,
+        _ => MotionOrder::Third,
+    };
+    let mut problem = first.with_motion_order(order, &has_neighbours);
     // The terms the truth does not have are held (the selection's job is not judged here).
     problem.fixed.global = [Term::K3, Term::B1, Term::B2]
         .into_iter()

@@ -55,7 +55,7 @@ pub trait CameraModel: Sync {
 /// The `brown` model with the ten intrinsics of [`crate::camera::Term::ALL`] shared by every
 /// camera (one phone, one calibration); with a rolling shutter
 /// ([`crate::camera::rolling`]), also each camera's motion (6 local values `(ω, ν)`, or up to
-/// 18 with accelerations and jerks when neighbouring video frames are measured,
+/// 24 with accelerations, jerks and snaps when neighbouring video frames are measured,
 /// [`MotionOrder`]) and the shared readout time τ (the eleventh shared value,
 /// [`BrownModel::READOUT`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -368,13 +368,13 @@ mod tests {
         );
     }
 
-    /// The same with second- and third-order motions (ω, ν, α, a, ζ, j) per camera.
+    /// The same with second- to fourth-order motions (ω, ν, α, a, ζ, j, σ, s) per camera.
     #[test]
     fn higher_order_rolling_shutter_brown_jacobians_match_central_differences() {
         let i = [
             3000.0, 1930.0, 1075.0, 0.012, -0.009, 0.004, 1.6e-4, -2e-4, 0.3, -0.2, 0.025,
         ];
-        for order in [MotionOrder::Second, MotionOrder::Third] {
+        for order in [MotionOrder::Second, MotionOrder::Third, MotionOrder::Fourth] {
             check_jacobians(
                 &BrownModel::rolling_shutter_of_order(2160.0, order),
                 &HIGHER_ORDER_MOTION[..order.values()],
@@ -384,10 +384,10 @@ mod tests {
         }
     }
 
-    /// A hand-held motion to third order: velocities, accelerations, jerks.
-    const HIGHER_ORDER_MOTION: [f64; 18] = [
+    /// A hand-held motion to fourth order: velocities, accelerations, jerks, snaps.
+    const HIGHER_ORDER_MOTION: [f64; 24] = [
         0.05, -0.12, 0.03, 0.08, -0.02, 0.11, 0.3, -0.2, 0.25, -0.4, 0.6, 0.2, 6.0, -4.0, 3.0,
-        -8.0, 5.0, 2.0,
+        -8.0, 5.0, 2.0, 0.9, -0.6, 1.2, 0.4, -0.7, 0.3,
     ];
 
     /// Scaling the world by `s` scales `p_cam`, ν, a and j: the image stays the same, in the
@@ -401,6 +401,7 @@ mod tests {
             BrownModel::rolling_shutter(2160.0),
             BrownModel::rolling_shutter_of_order(2160.0, MotionOrder::Second),
             BrownModel::rolling_shutter_of_order(2160.0, MotionOrder::Third),
+            BrownModel::rolling_shutter_of_order(2160.0, MotionOrder::Fourth),
         ] {
             let n = m.local_len();
             let mut local = HIGHER_ORDER_MOTION[..n].to_vec();

@@ -36,10 +36,10 @@ const CHUNK: usize = 512;
 /// Ceres' `min_lm_diagonal` and `max_lm_diagonal`.
 const MIN_DIAGONAL: f64 = 1e-6;
 
-/// Most per-camera values a model may carry (a third-order rolling-shutter motion's 18):
+/// Most per-camera values a model may carry (a fourth-order rolling-shutter motion's 24):
 /// the linearisation's stack buffers are this long; `Problem::validate`
 /// refuses a model with more.
-pub(crate) const MAX_LOCAL: usize = 18;
+pub(crate) const MAX_LOCAL: usize = crate::camera::rolling::MAX_VALUES;
 const MAX_DIAGONAL: f64 = 1e32;
 /// Ceres' `min_relative_decrease`.
 const MIN_RELATIVE_DECREASE: f64 = 1e-3;
@@ -588,7 +588,7 @@ fn sub_y_wt(y: &[f64], m: usize, w: &[f64], n: usize, rows: &mut [f64], n_r: usi
 
 /// faer's parallelism for the current rayon pool: its threads, or none on one thread. The
 /// factor and the solution are the same to the bit on 1, 2 and 3 threads
-/// (`cholesky_is_the_same_on_any_thread_count`, up to a 90-frame third-order system).
+/// (`cholesky_is_the_same_on_any_thread_count`, up to a 90-frame fourth-order system).
 pub(crate) fn faer_par() -> Par {
     match rayon::current_num_threads() {
         0 | 1 => Par::Seq,
@@ -598,7 +598,7 @@ pub(crate) fn faer_par() -> Par {
 
 /// Factorises the symmetric positive definite `s` (n×n) in place and solves `s·x = rhs`;
 /// `false` if it is not positive definite. The factorisation runs on the current rayon pool
-/// (a 90-frame video's third-order reduced system is 2,160 unknowns: 3.4 GFLOP a step).
+/// (a 90-frame video's fourth-order reduced system is 2,700 unknowns: 6.6 GFLOP a step).
 pub(crate) fn cholesky_solve(
     s: &mut [f64],
     n: usize,
@@ -1060,9 +1060,9 @@ mod tests {
 
     #[test]
     fn cholesky_is_the_same_on_any_thread_count() {
-        // Sizes about and above faer's blocking thresholds, up to a 90-frame third-order
+        // Sizes about and above faer's blocking thresholds, up to a 90-frame fourth-order
         // reduced system.
-        for (n, seed) in [(97, 1), (640, 2), (2170, 3)] {
+        for (n, seed) in [(97, 1), (640, 2), (2710, 3)] {
             let (a, rhs) = spd(n, seed);
             let (s1, x1) = solve_on(1, &a, &rhs);
             // The solution solves the system (residual against the original matrix).

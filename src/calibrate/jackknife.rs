@@ -5,7 +5,7 @@
 //!
 //! The adjustment's covariance assumes independent observations. On a hand-held video the
 //! errors that remain are correlated within a frame: each frame's motion over the readout time
-//! and over `±1/fps` to its neighbours is a third-order polynomial, and hand tremor at 4–12 Hz
+//! and over `±1/fps` to its neighbours is a fourth-order polynomial, and hand tremor at 4–12 Hz
 //! bends the true motion beyond it by a different amount in every frame — one error per frame,
 //! shared by all its targets, which the covariance counts as many independent ones. The frames
 //! are split into [`JACKKNIFE_GROUPS`] interleaved groups (frame `i` in group `i mod g`, so

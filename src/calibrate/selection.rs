@@ -617,11 +617,12 @@ fn try_rolling_shutter(
 /// Over `±1/fps` a hand-held motion is not of constant velocity: its acceleration turns a
 /// frame by about a pixel and its jerk makes the neighbours' central difference 1–2 % faster
 /// than the velocity the rows see (measured on the simulator's truth,
-/// `scripts/neighbour_velocity.py`). The frames' motions are therefore taken to third order
-/// here ([`NEIGHBOUR_MOTION_ORDER`]; each neighbour's own rows show its own velocity, which
-/// separates the jerk from the velocity), for the frames seen from both sides. What is left
-/// (hand tremor at 4–12 Hz beyond third order over `±1/fps`) keeps the neighbours' residuals
-/// larger than the frames'. Their weight is set by a variance-component estimate (Förstner
+/// `scripts/neighbour_velocity.py`), and hand tremor at 4–12 Hz bends the path over the
+/// `±(1/fps + τ/2)` the three frames' rows span beyond a cubic. The frames' motions are
+/// therefore taken to fourth order here ([`NEIGHBOUR_MOTION_ORDER`]; each neighbour's own
+/// rows show its own velocity, which separates the higher orders from the velocity), for the
+/// frames seen from both sides. What is left (the tremor beyond fourth order) can keep the
+/// neighbours' residuals larger than the frames'. Their weight is set by a variance-component estimate (Förstner
 /// 1979, simplified to the groups' RMS residuals), `w = (RMS of the frames / RMS of the
 /// neighbours)²`, iterated until it changes by less than 10 % (at most
 /// [`VARIANCE_COMPONENT_ITERATIONS`] times), so that σ0 and the covariance stay those of the
@@ -732,7 +733,7 @@ pub fn estimate_readout_time(
         log,
     );
     // The neighbours' errors are mostly one motion error per neighbour frame (tremor bends
-    // the motion over 1/fps beyond its third order), not independent per target: the
+    // the motion over 1/fps beyond its fourth order), not independent per target: the
     // adjustment's σ of the readout time, which assumes independence, is scaled by the design
     // effect of those clusters (Kish 1965: 1 + (m̄ − 1)·ρ, with the regressor taken as fully
     // correlated within a frame, which is conservative).
@@ -759,8 +760,12 @@ pub fn estimate_readout_time(
     })
 }
 
-/// The order of the frames' motions once their neighbours in the video are measured.
-pub const NEIGHBOUR_MOTION_ORDER: MotionOrder = MotionOrder::Third;
+/// The order of the frames' motions once their neighbours in the video are measured: the
+/// fourth, the highest at which a frame and its two neighbours still determine the readout
+/// time ([`MotionOrder::Fourth`]). On the 4K video labs' exact rolling-shutter projections
+/// (`examples/video_truth_adjust.rs`, seed 1) the third order left the camera 0.062–0.139 px
+/// off the truth (the tremor it cannot follow), the fourth 0.011–0.024 px.
+pub const NEIGHBOUR_MOTION_ORDER: MotionOrder = MotionOrder::Fourth;
 
 /// Neighbour observations a frame needs on each side (before and after it) for its
 /// higher-order motion to be adjusted: seen as the curvature of its path through the three

@@ -9,15 +9,17 @@
 //!   pose is adjusted (`0`, or `±1/fps` for a neighbouring video frame); the middle row is at
 //!   the frame time.
 //! * Motion: a static point at `p₀` in the camera frame at the frame time is, `s` seconds
-//!   later, at `p(s) = exp([s·ω + ½s²·α + ⅙s³·ζ]×)·p₀ + s·ν + ½s²·a + ⅙s³·j`, with `ω` (rad/s) and `ν` (world
-//!   units/s) in the camera frame (`[ω]× = Ṙ·Rᵀ`, `ν = Ṫ − ω × T` of `cam_from_world =
-//!   (R, T)`), their rates of change `α`, `a` and those rates' `ζ`, `j`: third order about
-//!   the frame time. Over one readout the second-order terms move a point by
-//!   thousandths of a pixel; over `±1/fps` to a neighbouring video frame the hand's
-//!   acceleration (15–20 °/s² on the simulated video paths) turns the camera by `½·α·Δ²`,
-//!   about a pixel at 1920 px, and its jerk makes the poses' central difference 1–2 % faster
-//!   than the velocity (Hedborg et al. 2012 use first order within a frame; the neighbours
-//!   need up to the third, [`MotionOrder`]).
+//!   later, at `p(s) = exp([s·ω + ½s²·α + ⅙s³·ζ + s⁴/24·σ]×)·p₀ + s·ν + ½s²·a + ⅙s³·j +
+//!   s⁴/24·s₄`, with `ω` (rad/s) and `ν` (world units/s) in the camera frame (`[ω]× = Ṙ·Rᵀ`,
+//!   `ν = Ṫ − ω × T` of `cam_from_world = (R, T)`), their rates of change `α`, `a`, those
+//!   rates' `ζ`, `j` and theirs `σ`, `s₄`: up to fourth order about the frame time. Over one
+//!   readout the second-order terms move a point by thousandths of a pixel; over `±1/fps` to a
+//!   neighbouring video frame the hand's acceleration (15–20 °/s² on the simulated video
+//!   paths) turns the camera by `½·α·Δ²`, about a pixel at 1920 px, its jerk makes the poses'
+//!   central difference 1–2 % faster than the velocity, and its 4–12 Hz tremor bends the path
+//!   within the `±(1/fps + τ/2)` the three frames' rows span more than a cubic follows
+//!   (Hedborg et al. 2012 use first order within a frame; the neighbours need up to the
+//!   fourth, [`MotionOrder`]).
 //! * Projection: the row that sees the point depends on where it is seen, so the pixel
 //!   solves `v = π_v(p(s(v)))` (a contraction: the motion over one row is a tiny fraction of
 //!   a row); [`project`] iterates it, [`project_with_jacobians`] differentiates the solution
@@ -28,7 +30,7 @@ use nalgebra::{Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
 use super::brown::Intrinsics;
 use crate::geometry::pose::skew;
 
-/// A frame's motion about its pose at the frame time (camera frame), to second order.
+/// A frame's motion about its pose at the frame time (camera frame), up to fourth order.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Motion {
     /// Angular velocity ω (rad/s).
@@ -43,6 +45,10 @@ pub struct Motion {
     pub angular_jerk: Vector3<f64>,
     /// Linear jerk j (world units/s³); zero below third order.
     pub linear_jerk: Vector3<f64>,
+    /// Angular snap σ (rad/s⁴, the jerk's rate); zero below fourth order.
+    pub angular_snap: Vector3<f64>,
+    /// Linear snap s₄ (world units/s⁴); zero below fourth order.
+    pub linear_snap: Vector3<f64>,
 }
 
 /// The order of a frame's motion about its time: how many of its values are adjusted.
@@ -57,6 +63,13 @@ pub enum MotionOrder {
     /// frames `±1/fps` away: the central difference of their poses is the velocity only to
     /// second order, `Δ²·jerk/6` off, 1–2 % of the speed on the simulated video paths).
     Third,
+    /// Up to the snaps `[σx, σy, σz, sx, sy, sz]`, the jerks' rates: what a frame and its two
+    /// neighbours can carry with the readout time still determined (per axis they show three
+    /// poses and three velocities, the rows' shear over τ; a degree-4 path has five values
+    /// besides the pose, a quintic would match any τ). Hand tremor at 8–12 Hz bends the path
+    /// over the ±48 ms the three frames' rows span: a cubic leaves 5–21 % of its amplitude, a
+    /// quartic 2–9 %.
+    Fourth,
 }
 
 impl MotionOrder {
@@ -67,49 +80,58 @@ impl MotionOrder {
             MotionOrder::First => 6,
             MotionOrder::Second => 12,
             MotionOrder::Third => 18,
+            MotionOrder::Fourth => 24,
         }
     }
 }
 
 /// The time unit of the adjusted higher-order values (s, one frame interval at 30 fps): an
-/// acceleration is adjusted as `α·T` and a jerk as `ζ·T²`, in the units of a velocity, so that
+/// acceleration is adjusted as `α·T`, a jerk as `ζ·T²` and a snap as `σ·T³`, in the units of a velocity, so that
 /// over `±1/fps` every order moves the image by comparable amounts per unit and the normal
 /// equations stay well conditioned (a jerk in rad/s³ moves a pixel 10⁵ times less than a
 /// rotation of the pose).
 pub const HIGHER_ORDER_TIME_UNIT_S: f64 = 1.0 / 30.0;
 
-/// The blocks of the adjusted values ([`Motion::values`]) in world units: ν, `a·T` and
-/// `j·T²`, which scale with the world; the angular ones do not.
-pub const WORLD_UNIT_BLOCKS: [std::ops::Range<usize>; 3] = [3..6, 9..12, 15..18];
+/// The blocks of the adjusted values ([`Motion::values`]) in world units: ν, `a·T`, `j·T²`
+/// and `s₄·T³`, which scale with the world; the angular ones do not.
+pub const WORLD_UNIT_BLOCKS: [std::ops::Range<usize>; ORDERS] = [3..6, 9..12, 15..18, 21..24];
+
+/// The most orders a motion has ([`MotionOrder::Fourth`]).
+pub const ORDERS: usize = 4;
+
+/// The most adjusted values of a motion: 6 per order.
+pub const MAX_VALUES: usize = 6 * ORDERS;
 
 /// The unit of each order's adjusted value, `Tᵏ` ([`HIGHER_ORDER_TIME_UNIT_S`]): the
-/// velocities as they are, `α·T`, `a·T`, then `ζ·T²`, `j·T²`.
-const ORDER_UNITS: [f64; 3] = [
+/// velocities as they are, `α·T`, `a·T`, then `ζ·T²`, `j·T²`, then `σ·T³`, `s₄·T³`.
+const ORDER_UNITS: [f64; ORDERS] = [
     1.0,
     HIGHER_ORDER_TIME_UNIT_S,
     HIGHER_ORDER_TIME_UNIT_S * HIGHER_ORDER_TIME_UNIT_S,
+    HIGHER_ORDER_TIME_UNIT_S * HIGHER_ORDER_TIME_UNIT_S * HIGHER_ORDER_TIME_UNIT_S,
 ];
 
 /// The Taylor weights `sᵏ⁺¹/(k+1)!` of the orders' values in the motion `s` seconds on:
-/// `[s, ½s², ⅙s³]`.
-fn order_weights(s: f64) -> [f64; 3] {
-    [s, 0.5 * s * s, s * s * s / 6.0]
+/// `[s, ½s², ⅙s³, s⁴/24]`.
+fn order_weights(s: f64) -> [f64; ORDERS] {
+    let s2 = s * s;
+    [s, 0.5 * s2, s2 * s / 6.0, s2 * s2 / 24.0]
 }
 
-/// Their derivatives in `s`: `[1, s, ½s²]`.
-fn order_rates(s: f64) -> [f64; 3] {
-    [1.0, s, 0.5 * s * s]
+/// Their derivatives in `s`: `[1, s, ½s², ⅙s³]`.
+fn order_rates(s: f64) -> [f64; ORDERS] {
+    [1.0, s, 0.5 * s * s, s * s * s / 6.0]
 }
 
 /// `Σₖ wₖ·xₖ`.
-fn weighted(x: &[Vector3<f64>; 3], w: [f64; 3]) -> Vector3<f64> {
-    x[0] * w[0] + x[1] * w[1] + x[2] * w[2]
+fn weighted(x: &[Vector3<f64>; ORDERS], w: [f64; ORDERS]) -> Vector3<f64> {
+    x.iter().zip(w).map(|(x, w)| x * w).sum()
 }
 
 impl Motion {
     /// From the adjusted values of a motion of any order ([`MotionOrder::values`]; the higher
     /// orders missing are zero): velocities, then accelerations × [`HIGHER_ORDER_TIME_UNIT_S`],
-    /// then jerks × its square.
+    /// jerks × its square, snaps × its cube.
     #[must_use]
     pub fn from_slice(v: &[f64]) -> Self {
         let at = |k: usize| {
@@ -124,13 +146,15 @@ impl Motion {
             linear_acceleration: at(3),
             angular_jerk: at(4),
             linear_jerk: at(5),
+            angular_snap: at(6),
+            linear_snap: at(7),
         }
     }
 
-    /// The adjusted values of the third-order motion: the inverse of [`Motion::from_slice`].
+    /// The adjusted values of the fourth-order motion: the inverse of [`Motion::from_slice`].
     #[must_use]
-    pub fn values(&self) -> [f64; 18] {
-        let mut out = [0.0; 18];
+    pub fn values(&self) -> [f64; MAX_VALUES] {
+        let mut out = [0.0; MAX_VALUES];
         let blocks = [
             self.angular,
             self.linear,
@@ -138,6 +162,8 @@ impl Motion {
             self.linear_acceleration,
             self.angular_jerk,
             self.linear_jerk,
+            self.angular_snap,
+            self.linear_snap,
         ];
         for (k, (o, x)) in out.chunks_exact_mut(3).zip(blocks).enumerate() {
             for (o, v) in o.iter_mut().zip(x.iter()) {
@@ -147,36 +173,46 @@ impl Motion {
         out
     }
 
-    /// The angular values by order: `[ω, α, ζ]`.
-    fn angular_orders(&self) -> [Vector3<f64>; 3] {
-        [self.angular, self.angular_acceleration, self.angular_jerk]
+    /// The angular values by order: `[ω, α, ζ, σ]`.
+    fn angular_orders(&self) -> [Vector3<f64>; ORDERS] {
+        [
+            self.angular,
+            self.angular_acceleration,
+            self.angular_jerk,
+            self.angular_snap,
+        ]
     }
 
-    /// The linear values by order: `[ν, a, j]`.
-    fn linear_orders(&self) -> [Vector3<f64>; 3] {
-        [self.linear, self.linear_acceleration, self.linear_jerk]
+    /// The linear values by order: `[ν, a, j, s]`.
+    fn linear_orders(&self) -> [Vector3<f64>; ORDERS] {
+        [
+            self.linear,
+            self.linear_acceleration,
+            self.linear_jerk,
+            self.linear_snap,
+        ]
     }
 
     /// The rotation vector turning the camera frame at the frame time into the one `s`
-    /// seconds later (applied to points): `s·ω + ½s²·α + ⅙s³·ζ`.
+    /// seconds later (applied to points): `s·ω + ½s²·α + ⅙s³·ζ + s⁴/24·σ`.
     #[must_use]
     pub fn rotation_at(&self, s: f64) -> Vector3<f64> {
         weighted(&self.angular_orders(), order_weights(s))
     }
 
-    /// Its rate `ω + s·α + ½s²·ζ`.
+    /// Its rate `ω + s·α + ½s²·ζ + ⅙s³·σ`.
     #[must_use]
     pub fn rotation_rate_at(&self, s: f64) -> Vector3<f64> {
         weighted(&self.angular_orders(), order_rates(s))
     }
 
-    /// The translation of the point: `s·ν + ½s²·a + ⅙s³·j`.
+    /// The translation of the point: `s·ν + ½s²·a + ⅙s³·j + s⁴/24·s₄`.
     #[must_use]
     pub fn translation_at(&self, s: f64) -> Vector3<f64> {
         weighted(&self.linear_orders(), order_weights(s))
     }
 
-    /// Its rate `ν + s·a + ½s²·j`.
+    /// Its rate `ν + s·a + ½s²·j + ⅙s³·s₄`.
     #[must_use]
     pub fn translation_rate_at(&self, s: f64) -> Vector3<f64> {
         weighted(&self.linear_orders(), order_rates(s))
@@ -276,9 +312,9 @@ pub struct RollingProjection {
     pub time_s: f64,
     /// `∂uv/∂p₀` (2×3).
     pub d_uv_d_p0: Matrix2x3<f64>,
-    /// `∂uv/∂(ω, ν, α, a, ζ, j)` (2×18; the first [`MotionOrder::values`] columns are a motion
-    /// of that order's).
-    pub d_uv_d_motion: SMatrix<f64, 2, 18>,
+    /// `∂uv/∂(ω, ν, α, a, ζ, j, σ, s₄)` (2×24; the first [`MotionOrder::values`] columns are a
+    /// motion of that order's).
+    pub d_uv_d_motion: SMatrix<f64, 2, MAX_VALUES>,
     /// `∂uv/∂intrinsics`, columns in the order of [`super::Term::ALL`] (2×10).
     pub d_uv_d_intrinsics: SMatrix<f64, 2, 10>,
     /// `∂uv/∂τ` (px/s).
@@ -327,9 +363,9 @@ pub fn project_with_jacobians(
     }
     // Order k's values act through sᵏ/(k!·Tᵏ⁻¹) (T the time unit of the higher orders):
     // ∂p/∂ω = s·∂p/∂φ, ∂p/∂ν = s·I, ∂p/∂(α·T) = s²/(2T)·∂p/∂φ, ∂p/∂(a·T) = s²/(2T)·I,
-    // ∂p/∂(ζ·T²) = s³/(6T²)·∂p/∂φ, ∂p/∂(j·T²) = s³/(6T²)·I.
+    // ∂p/∂(ζ·T²) = s³/(6T²)·∂p/∂φ, ∂p/∂(j·T²) = s³/(6T²)·I, and s⁴/(24T³) for the snaps.
     let explicit_phi = jb * dq_dphi;
-    let mut d_uv_d_motion = SMatrix::<f64, 2, 18>::zeros();
+    let mut d_uv_d_motion = SMatrix::<f64, 2, MAX_VALUES>::zeros();
     for (order, (w, unit)) in order_weights(s).into_iter().zip(ORDER_UNITS).enumerate() {
         let f = w / unit;
         for c in 0..3 {
@@ -388,6 +424,8 @@ mod tests {
             linear_acceleration: Vector3::new(0.3, -0.2, 0.1).normalize() * 0.5,
             angular_jerk: Vector3::new(0.1, 0.7, -0.3).normalize() * 400f64.to_radians(),
             linear_jerk: Vector3::new(-0.6, 0.2, 0.4).normalize() * 8.0,
+            angular_snap: Vector3::new(0.5, -0.3, 0.6).normalize() * 9000f64.to_radians(),
+            linear_snap: Vector3::new(0.2, 0.9, -0.1).normalize() * 150.0,
         }
     }
 
@@ -475,10 +513,12 @@ mod tests {
                 (back.linear_acceleration, m.linear_acceleration),
                 (back.angular_jerk, m.angular_jerk),
                 (back.linear_jerk, m.linear_jerk),
+                (back.angular_snap, m.angular_snap),
+                (back.linear_snap, m.linear_snap),
             ] {
                 assert!((x - y).norm() <= 1e-12 * y.norm(), "{x} {y}");
             }
-            for c in 0..MotionOrder::Third.values() {
+            for c in 0..MotionOrder::Fourth.values() {
                 let h = 1e-6;
                 let (mut a, mut b) = (v, v);
                 a[c] += h;
