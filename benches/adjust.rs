@@ -17,8 +17,8 @@ use pipemeasure::adjust::{
     AdjustConfig, BrownModel, Observation, Problem, bundle_adjust, problem_from_bal,
 };
 use pipemeasure::calibrate::jackknife::frame_jackknife;
-use pipemeasure::camera::Intrinsics;
 use pipemeasure::calibrate::selection::NEIGHBOUR_MOTION_ORDER;
+use pipemeasure::camera::Intrinsics;
 use pipemeasure::camera::rolling::{self, Motion, RowTiming};
 use pipemeasure::experiments::calibration::truth_target_problem;
 use pipemeasure::io::bal::read_bal;

@@ -3,10 +3,10 @@
 //! video_truth_adjust -- LAB/truth.json [NOISE_PX] [NEIGHBOUR_WEIGHT]`, or with
 //! `sim:PRESET:WIDTH:TREMOR_DEG_S:SEED[:EXPOSURE_MS]` in place of the truth file to simulate
 //! the lab's truth (`simulate lab --video --neighbours`) without rendering it. Each frame and
-//! its neighbours see the targets' exact rolling-shutter projections (plus NOISE_PX of Gaussian noise, default 0), the
-//! adjustment is the calibration's (third-order motions, readout free, c u0 v0 k1 k2 p1 p2),
-//! and the camera is scored against the truth over the frame: what is left is the motion
-//! model's own error.
+//! its neighbours see the targets' exact rolling-shutter projections (plus NOISE_PX of Gaussian
+//! noise, default 0), the adjustment is the calibration's (third-order motions, or the fourth
+//! with `MOTION_ORDER=4` in the environment; readout free; c u0 v0 k1 k2 p1 p2), and the camera
+//! is scored against the truth over the frame: what is left is the motion model's own error.
 #![allow(missing_docs)]
 
 use std::path::PathBuf;

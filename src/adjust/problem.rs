@@ -278,32 +278,32 @@ impl Problem<super::BrownModel> {
     }
 
     /// The same rolling-shutter problem with motions of `order`: each camera's higher-order
-    /// values appended at zero after its first-order `(ω, ν)`, and held fixed for the cameras
-    /// not in `free` (a frame's accelerations and jerks show only in neighbouring video frames
-    /// on both sides of it). A global shutter, or a problem already of a higher order:
-    /// unchanged.
+    /// values appended at zero after those of its present order, and held fixed for the
+    /// cameras not in `free` (a frame's accelerations and jerks show only in neighbouring
+    /// video frames on both sides of it). A global shutter, or a problem already of that order
+    /// or a higher one: unchanged.
     #[must_use]
     pub fn with_motion_order(&self, order: MotionOrder, free: &[bool]) -> Self {
-        let first = MotionOrder::First.values();
+        let present = self.model.motion_order.values();
         let Some(super::model::RowHeight(height_px)) = self.model.rolling_shutter else {
             return self.clone();
         };
-        if self.model.motion_order != MotionOrder::First || order == MotionOrder::First {
+        if order.values() <= present {
             return self.clone();
         }
         let mut p = self.clone();
         p.model = super::BrownModel::rolling_shutter_of_order(height_px, order);
-        let extra = order.values() - first;
+        let extra = order.values() - present;
         p.local = self
             .local
-            .chunks(first)
+            .chunks(present)
             .flat_map(|m| m.iter().copied().chain(std::iter::repeat_n(0.0, extra)))
             .collect();
         for c in 0..self.num_cameras() {
             if !free.get(c).copied().unwrap_or(false) {
                 p.fixed
                     .camera_local
-                    .extend((first..order.values()).map(|k| (c, k)));
+                    .extend((present..order.values()).map(|k| (c, k)));
             }
         }
         p
@@ -364,12 +364,31 @@ mod tests {
             third.num_free_parameters(),
             first.num_free_parameters() + 2 * 12 - 12
         );
-        // A second call, or a global shutter, leaves the problem as it is.
+        // A lower order, or a global shutter, leaves the problem as it is.
         assert_eq!(
             third
                 .with_motion_order(MotionOrder::Second, &[true, true])
                 .local,
             third.local
+        );
+        // From the third order to the fourth: the third's values kept, the snaps appended at
+        // zero and held for the camera not free, after its held accelerations and jerks.
+        let mut adjusted = third.clone();
+        for (k, v) in adjusted.local.iter_mut().enumerate() {
+            *v = 0.01 * (k as f64 + 1.0);
+        }
+        let fourth = adjusted.with_motion_order(MotionOrder::Fourth, &[true, false]);
+        fourth.validate().unwrap();
+        assert_eq!(fourth.model.motion_order, MotionOrder::Fourth);
+        for c in 0..2 {
+            assert_eq!(fourth.local_of(c)[..18], adjusted.local_of(c)[..]);
+            assert!(fourth.local_of(c)[18..].iter().all(|&v| v == 0.0));
+        }
+        let held: Vec<usize> = fourth.fixed.local_of(1).collect();
+        assert_eq!(held, (6..24).collect::<Vec<_>>());
+        assert_eq!(
+            fourth.num_free_parameters(),
+            third.num_free_parameters() + 6
         );
         let still = first.without_rolling_shutter();
         assert_eq!(

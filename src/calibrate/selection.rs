@@ -619,13 +619,12 @@ fn try_rolling_shutter(
 /// than the velocity the rows see (measured on the simulator's truth,
 /// `scripts/neighbour_velocity.py`), and hand tremor at 4–12 Hz bends the path over the
 /// `±(1/fps + τ/2)` the three frames' rows span beyond a cubic. The frames' motions are
-/// therefore taken to fourth order here ([`NEIGHBOUR_MOTION_ORDER`]; each neighbour's own
+/// therefore taken to third order here ([`NEIGHBOUR_BASE_MOTION_ORDER`]; each neighbour's own
 /// rows show its own velocity, which separates the higher orders from the velocity), for the
-/// frames seen from both sides. What is left (the tremor beyond fourth order) can keep the
-/// neighbours' residuals larger than the frames'. Their weight is set by a variance-component estimate (Förstner
-/// 1979, simplified to the groups' RMS residuals), `w = (RMS of the frames / RMS of the
-/// neighbours)²`, iterated until it changes by less than 10 % (at most
-/// [`VARIANCE_COMPONENT_ITERATIONS`] times), so that σ0 and the covariance stay those of the
+/// frames seen from both sides, and to the fourth when its snaps are significant and lower the
+/// BIC ([`try_higher_motion_order`]). What is left (the tremor beyond) can keep the
+/// neighbours' residuals larger than the frames'. Their weight is set by a variance-component
+/// estimate ([`variance_components`]), so that σ0 and the covariance stay those of the
 /// frames' observations.
 ///
 /// # Errors
@@ -643,7 +642,6 @@ pub fn estimate_readout_time(
             "the readout time is estimated only for a rolling-shutter model".into(),
         ));
     };
-    let own = selected.problem.observations.len();
     // Higher-order motions: over ±1/fps the hand's acceleration turns a frame by about a pixel
     // (the first-order motion left the neighbours 0.9 px RMS off on the 1920 video labs,
     // against the frames' 0.015 px), and its jerk makes the neighbours' central difference
@@ -652,7 +650,7 @@ pub fn estimate_readout_time(
     let free = frames_with_neighbours_on_both_sides(selected.problem.num_cameras(), extra);
     let mut current = selected
         .problem
-        .with_motion_order(NEIGHBOUR_MOTION_ORDER, &free);
+        .with_motion_order(NEIGHBOUR_BASE_MOTION_ORDER, &free);
     // The motions start from those selected (fit to the frames alone) or from rest, whichever
     // predicts the neighbours better: within one frame a roll rate common to all frames trades
     // with u0 and p2, and on BoofCV's real video the selected motions put the neighbours
@@ -682,44 +680,16 @@ pub fn estimate_readout_time(
     log(&format!(
         "neighbouring video frames at the start: RMS {neighbours_start:.3} px against the frames' {frames_start:.4} px"
     ));
-    let mut weight = (frames_start
-        / neighbours_start.clamp(f64::MIN_POSITIVE, NEIGHBOUR_START_RMS_PX))
-    .powi(2)
-    .min(1.0);
-    let mut fitted = None;
-    for _ in 0..VARIANCE_COMPONENT_ITERATIONS {
-        let mut observations = selected.problem.observations.clone();
-        observations.extend(extra.iter().map(|o| Observation { weight, ..*o }));
-        let mut problem = Problem::new(
-            current.model,
-            current.cam_from_world.clone(),
-            current.local.clone(),
-            current.global.clone(),
-            current.points.clone(),
-            observations,
-        )?;
-        problem.fixed = current.fixed.clone();
-        let fit_now = fit(problem, &selected.terms, true, adjust)?;
-        let (frames_rms, neighbours_rms) = (
-            group_rms(&fit_now.problem, &fit_now.problem.observations[..own]),
-            group_rms(&fit_now.problem, &fit_now.problem.observations[own..]),
-        );
-        let next = (frames_rms / neighbours_rms.max(f64::MIN_POSITIVE))
-            .powi(2)
-            .min(1.0);
-        current = fit_now.problem.clone();
-        fitted = Some(fit_now);
-        let settled = (next / weight - 1.0).abs() < 0.1;
-        weight = next;
-        if settled {
-            break;
-        }
-    }
-    let Some(fitted) = fitted else {
-        return Err(AdjustError::Invalid(
-            "no variance-component iteration ran".into(),
-        ));
-    };
+    let weight = (frames_start / neighbours_start.clamp(f64::MIN_POSITIVE, NEIGHBOUR_START_RMS_PX))
+        .powi(2)
+        .min(1.0);
+    let (fitted, weight) = variance_components(current, weight, &selected, extra, adjust)?;
+    // The fourth order, tried on top like a candidate term.
+    let (fitted, weight) =
+        match try_higher_motion_order(&fitted, &selected.terms, &free, adjust, log) {
+            Some(trial) => variance_components(trial.problem, weight, &selected, extra, adjust)?,
+            None => (fitted, weight),
+        };
     // The terms the motions hid (a decentring whose p2 a common roll rate could mimic) are
     // tried again now that the neighbours fix the motions.
     let mut steps = selected.steps.clone();
@@ -760,9 +730,111 @@ pub fn estimate_readout_time(
     })
 }
 
-/// The order of the frames' motions once their neighbours in the video are measured: the
-/// fourth, the highest at which a frame and its two neighbours still determine the readout
-/// time ([`MotionOrder::Fourth`]). On the 4K video labs' exact rolling-shutter projections
+/// Adjusts `start` (the frames' observations of `selected` and the neighbours' `extra`) with
+/// the neighbours weighted by their variance component (Förstner 1979, simplified to the
+/// groups' RMS residuals), `w = (RMS of the frames / RMS of the neighbours)²`, from `weight`
+/// and iterated until it changes by less than 10 % (at most
+/// [`VARIANCE_COMPONENT_ITERATIONS`] times): the fit and the weight it ended with.
+fn variance_components(
+    start: Problem<BrownModel>,
+    mut weight: f64,
+    selected: &Selected,
+    extra: &[Observation],
+    adjust: &AdjustConfig,
+) -> Result<(Fit, f64), AdjustError> {
+    let own = selected.problem.observations.len();
+    let mut current = start;
+    let mut fitted = None;
+    for _ in 0..VARIANCE_COMPONENT_ITERATIONS {
+        let mut observations = selected.problem.observations.clone();
+        observations.extend(extra.iter().map(|o| Observation { weight, ..*o }));
+        let mut problem = Problem::new(
+            current.model,
+            current.cam_from_world.clone(),
+            current.local.clone(),
+            current.global.clone(),
+            current.points.clone(),
+            observations,
+        )?;
+        problem.fixed = current.fixed.clone();
+        let fit_now = fit(problem, &selected.terms, true, adjust)?;
+        let (frames_rms, neighbours_rms) = (
+            group_rms(&fit_now.problem, &fit_now.problem.observations[..own]),
+            group_rms(&fit_now.problem, &fit_now.problem.observations[own..]),
+        );
+        let next = (frames_rms / neighbours_rms.max(f64::MIN_POSITIVE))
+            .powi(2)
+            .min(1.0);
+        current = fit_now.problem.clone();
+        fitted = Some(fit_now);
+        let settled = (next / weight - 1.0).abs() < 0.1;
+        weight = next;
+        if settled {
+            break;
+        }
+    }
+    fitted
+        .map(|f| (f, weight))
+        .ok_or_else(|| AdjustError::Invalid("no variance-component iteration ran".into()))
+}
+
+/// Tries the frames' motions at [`NEIGHBOUR_MOTION_ORDER`] on top of `best` (at
+/// [`NEIGHBOUR_BASE_MOTION_ORDER`], the neighbours at its weight; the snaps free for the frames
+/// in `free`), kept like the rolling shutter itself ([`try_rolling_shutter`]) when the new
+/// unknowns are significant as a group (`χ²(0.999; k)`) and lower the BIC. Hand tremor at
+/// 4–12 Hz bends the path over the `±(1/fps + τ/2)` the three frames' rows span beyond a
+/// cubic: on the simulated 4K video labs the fourth order took the camera from 0.06–0.12 px
+/// off the truth to 0.013–0.065 px. Whether a real hand needs it is the data's to say.
+fn try_higher_motion_order(
+    best: &Fit,
+    terms: &[Term],
+    free: &[bool],
+    adjust: &AdjustConfig,
+    log: &dyn Fn(&str),
+) -> Option<Fit> {
+    let start = best.problem.with_motion_order(NEIGHBOUR_MOTION_ORDER, free);
+    let k = start.num_free_parameters() - best.problem.num_free_parameters();
+    if k == 0 {
+        return None;
+    }
+    let trial = match fit(start, terms, true, adjust) {
+        Ok(t) => t,
+        Err(e) => {
+            log(&format!(
+                "{NEIGHBOUR_MOTION_ORDER:?}-order motions: adjustment failed: {e}"
+            ));
+            return None;
+        }
+    };
+    let vtpv = |f: &Fit| f.precision.sigma0.powi(2) * f.precision.redundancy as f64;
+    let statistic = (vtpv(best) - vtpv(&trial)) / trial.precision.sigma0.powi(2).max(1e-300);
+    let critical = chi2_999(k);
+    let significant = statistic > critical;
+    let lower_bic = trial.bic < best.bic;
+    let verdict = match (significant, lower_bic) {
+        (true, true) => "kept (significant, lowers BIC)".to_string(),
+        (false, _) => format!("refused (not significant: χ² ≤ {critical:.1} for {k} unknowns)"),
+        (true, false) => "refused (does not lower BIC)".to_string(),
+    };
+    log(&format!(
+        "{NEIGHBOUR_MOTION_ORDER:?}-order motions over the neighbouring video frames ({k} unknowns): χ² {statistic:.1} (critical {critical:.1}), σ0 {:.4} → {:.4} px, BIC {:.1} → {:.1}, readout {:.2} → {:.2} ms: {verdict}",
+        best.precision.sigma0,
+        trial.precision.sigma0,
+        best.bic,
+        trial.bic,
+        1e3 * best.problem.global[BrownModel::READOUT],
+        1e3 * trial.problem.global[BrownModel::READOUT],
+    ));
+    (significant && lower_bic).then_some(trial)
+}
+
+/// The order of the frames' motions first adjusted once their neighbours in the video are
+/// measured: velocity, acceleration and jerk.
+pub const NEIGHBOUR_BASE_MOTION_ORDER: MotionOrder = MotionOrder::Third;
+
+/// The highest order of the frames' motions tried once their neighbours in the video are
+/// measured ([`try_higher_motion_order`]): the fourth, the highest at which a frame and its
+/// two neighbours still determine the readout time ([`MotionOrder::Fourth`]). On the 4K video labs' exact rolling-shutter projections
 /// (`examples/video_truth_adjust.rs`, seed 1) the third order left the camera 0.062–0.139 px
 /// off the truth (the tremor it cannot follow), the fourth 0.011–0.024 px.
 pub const NEIGHBOUR_MOTION_ORDER: MotionOrder = MotionOrder::Fourth;
