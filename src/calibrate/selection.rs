@@ -622,9 +622,9 @@ fn try_rolling_shutter(
 /// therefore taken to third order here ([`NEIGHBOUR_BASE_MOTION_ORDER`]; each neighbour's own
 /// rows show its own velocity, which separates the higher orders from the velocity), for the
 /// frames seen from both sides, and to the fourth when its snaps are significant and lower the
-/// BIC ([`try_higher_motion_order`]). What is left (the tremor beyond) can keep the
+/// BIC (`try_higher_motion_order`). What is left (the tremor beyond) can keep the
 /// neighbours' residuals larger than the frames'. Their weight is set by a variance-component
-/// estimate ([`variance_components`]), so that σ0 and the covariance stay those of the
+/// estimate (`variance_components`), so that σ0 and the covariance stay those of the
 /// frames' observations.
 ///
 /// # Errors
@@ -833,7 +833,7 @@ fn try_higher_motion_order(
 pub const NEIGHBOUR_BASE_MOTION_ORDER: MotionOrder = MotionOrder::Third;
 
 /// The highest order of the frames' motions tried once their neighbours in the video are
-/// measured ([`try_higher_motion_order`]): the fourth, the highest at which a frame and its
+/// measured (`try_higher_motion_order`): the fourth, the highest at which a frame and its
 /// two neighbours still determine the readout time ([`MotionOrder::Fourth`]). On the 4K video labs' exact rolling-shutter projections
 /// (`examples/video_truth_adjust.rs`, seed 1) the third order left the camera 0.062–0.139 px
 /// off the truth (the tremor it cannot follow), the fourth 0.011–0.024 px.
