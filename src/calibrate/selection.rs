@@ -527,6 +527,34 @@ fn stepwise(
     (best, terms)
 }
 
+/// The likelihood-ratio test and BIC comparison of a nested `trial` against `best`, `k`
+/// unknowns more: the drop of `vᵀPv` over the trial's `σ0²` against `χ²(0.999; k)`.
+struct NestedTest {
+    statistic: f64,
+    critical: f64,
+    significant: bool,
+    lower_bic: bool,
+}
+
+impl NestedTest {
+    fn new(best: &Fit, trial: &Fit, k: usize) -> Self {
+        let vtpv = |f: &Fit| f.precision.sigma0.powi(2) * f.precision.redundancy as f64;
+        let statistic = (vtpv(best) - vtpv(trial)) / trial.precision.sigma0.powi(2).max(1e-300);
+        let critical = chi2_999(k);
+        NestedTest {
+            statistic,
+            critical,
+            significant: statistic > critical,
+            lower_bic: trial.bic < best.bic,
+        }
+    }
+
+    /// Kept: significant and lowering the BIC.
+    fn accepted(&self) -> bool {
+        self.significant && self.lower_bic
+    }
+}
+
 /// Tries the rolling-shutter model on top of `best` (intrinsics `terms` free): kept when its
 /// motions are significant as a group — the drop of `vᵀPv` over `σ0²` of the trial beyond
 /// `χ²(0.999; k)` for its `k` new unknowns (a likelihood-ratio test: no single velocity need
@@ -552,13 +580,15 @@ fn try_rolling_shutter(
             return (step, None);
         }
     };
-    let vtpv = |f: &Fit| f.precision.sigma0.powi(2) * f.precision.redundancy as f64;
     let k = trial.problem.num_free_parameters() - best.problem.num_free_parameters();
-    let statistic = (vtpv(best) - vtpv(&trial)) / trial.precision.sigma0.powi(2).max(1e-300);
-    let critical = chi2_999(k);
-    let significant = statistic > critical;
-    let lower_bic = trial.bic < best.bic;
-    let accepted = significant && lower_bic;
+    let test = NestedTest::new(best, &trial, k);
+    let NestedTest {
+        statistic,
+        critical,
+        significant,
+        ..
+    } = test;
+    let accepted = test.accepted();
     let t_values = if setup.estimate_readout {
         let std = trial.precision.global_std();
         vec![trial.problem.global[BrownModel::READOUT] / std[BrownModel::READOUT]]
@@ -806,12 +836,13 @@ fn try_higher_motion_order(
             return None;
         }
     };
-    let vtpv = |f: &Fit| f.precision.sigma0.powi(2) * f.precision.redundancy as f64;
-    let statistic = (vtpv(best) - vtpv(&trial)) / trial.precision.sigma0.powi(2).max(1e-300);
-    let critical = chi2_999(k);
-    let significant = statistic > critical;
-    let lower_bic = trial.bic < best.bic;
-    let verdict = match (significant, lower_bic) {
+    let test = NestedTest::new(best, &trial, k);
+    let NestedTest {
+        statistic,
+        critical,
+        ..
+    } = test;
+    let verdict = match (test.significant, test.lower_bic) {
         (true, true) => "kept (significant, lowers BIC)".to_string(),
         (false, _) => format!("refused (not significant: χ² ≤ {critical:.1} for {k} unknowns)"),
         (true, false) => "refused (does not lower BIC)".to_string(),
@@ -825,7 +856,7 @@ fn try_higher_motion_order(
         1e3 * best.problem.global[BrownModel::READOUT],
         1e3 * trial.problem.global[BrownModel::READOUT],
     ));
-    (significant && lower_bic).then_some(trial)
+    test.accepted().then_some(trial)
 }
 
 /// The order of the frames' motions first adjusted once their neighbours in the video are
@@ -834,9 +865,10 @@ pub const NEIGHBOUR_BASE_MOTION_ORDER: MotionOrder = MotionOrder::Third;
 
 /// The highest order of the frames' motions tried once their neighbours in the video are
 /// measured (`try_higher_motion_order`): the fourth, the highest at which a frame and its
-/// two neighbours still determine the readout time ([`MotionOrder::Fourth`]). On the 4K video labs' exact rolling-shutter projections
-/// (`examples/video_truth_adjust.rs`, seed 1) the third order left the camera 0.062–0.139 px
-/// off the truth (the tremor it cannot follow), the fourth 0.011–0.024 px.
+/// two neighbours still determine the readout time ([`MotionOrder::Fourth`]). On the 4K video
+/// labs' exact rolling-shutter projections (`examples/video_truth_adjust.rs`, seed 1) the
+/// third order left the camera 0.062–0.139 px off the truth (the tremor it cannot follow), the
+/// fourth 0.011–0.024 px.
 pub const NEIGHBOUR_MOTION_ORDER: MotionOrder = MotionOrder::Fourth;
 
 /// Neighbour observations a frame needs on each side (before and after it) for its
