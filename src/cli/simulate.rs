@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result, bail};
+use pipemeasure::sim::dense::NoiseDirection;
 use pipemeasure::sim::devices::preset;
 use pipemeasure::sim::lab::LabConfig;
 use pipemeasure::sim::plant::{PlantScanConfig, simulate_plant};
@@ -10,6 +11,7 @@ use pipemeasure::sim::render::RenderConfig;
 use pipemeasure::sim::simulate::{
     SfmSource, SimulateOptions, SiteOptions, frames_to_render, simulate_lab, simulate_site,
 };
+use pipemeasure::sim::site::SiteConfig;
 use pipemeasure::sim::trajectory::MotionConfig;
 use pipemeasure::sim::truth::Truth;
 use pipemeasure::sim::video::{VideoConfig, speeds};
@@ -231,15 +233,41 @@ pub struct LabArgs {
 pub struct SiteArgs {
     #[command(flatten)]
     common: Common,
-    /// Number of frames (half portrait, half landscape).
-    #[arg(long, default_value_t = 60)]
-    frames: usize,
-    /// Number of targets on the wall.
-    #[arg(long, default_value_t = 8)]
-    targets: usize,
+    /// Number of frames (half portrait, half landscape; default 60, 20 for `--layout
+    /// two-pipes`).
+    #[arg(long)]
+    frames: Option<usize>,
+    /// Number of targets on the wall (default 8, 10 for `--layout two-pipes`).
+    #[arg(long)]
+    targets: Option<usize>,
+    /// The mock pipes: `three-pipes` (6", 4" and 2" pipes across the wall, the 4" of interest)
+    /// or `two-pipes` (a capped 2" pipe 1.16 m long in front of a capped 6" one, 0.14 m further
+    /// back; 20 frames on an arc around the 2" at 1.35–1.9 m).
+    #[arg(
+        long,
+        value_enum,
+        default_value = "three-pipes",
+        conflicts_with = "plant"
+    )]
+    layout: Layout,
     /// σ of the dense observations (px, 0 or more).
     #[arg(long, default_value_t = 0.3, value_parser = values::non_negative)]
     dense_noise: f64,
+    /// σ of a 3D error of every dense point (mm, 0 or more), as a multi-view stereo depth map
+    /// has it, beside the pixel noise.
+    #[arg(long, value_name = "MM", default_value_t = 0.0, value_parser = values::non_negative)]
+    dense_point_noise: f64,
+    /// Direction of that error: the surface normal or the viewing ray of the point's reference
+    /// view.
+    #[arg(long, value_enum, default_value = "normal")]
+    dense_noise_along: NoiseAlong,
+    /// Fraction of dense points that are outliers (0–0.5): a depth off by up to ±10 % along
+    /// their reference view's ray.
+    #[arg(long, value_name = "FRACTION", default_value_t = 0.0, value_parser = values::outlier_fraction)]
+    dense_outliers: f64,
+    /// Spacing of the dense points on the pipes (mm; default 2.5 mm scaled by 3840 / width).
+    #[arg(long, value_name = "MM", value_parser = values::positive)]
+    dense_spacing: Option<f64>,
     /// Offset added to the TLS coordinates, e.g. 500000,5600000,0 (site coordinates).
     #[arg(long, value_parser = values::point)]
     tls_offset: Option<nalgebra::Vector3<f64>>,
@@ -248,6 +276,20 @@ pub struct SiteArgs {
     /// and plant.json (every pipe segment and object) beside truth.json.
     #[arg(long)]
     plant: bool,
+}
+
+/// `--layout`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum Layout {
+    ThreePipes,
+    TwoPipes,
+}
+
+/// `--dense-noise-along`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum NoiseAlong {
+    Normal,
+    Ray,
 }
 
 fn options(c: &Common) -> Result<SimulateOptions> {
@@ -420,16 +462,26 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             check_out(&args.common)?;
             let opts = options(&args.common)?;
             let mut site = SiteOptions::default();
-            site.site.frames = args.frames;
-            site.site.targets = args.targets;
+            if matches!(args.layout, Layout::TwoPipes) {
+                site.site = SiteConfig::two_pipes();
+            }
+            site.site.frames = args.frames.unwrap_or(site.site.frames);
+            site.site.targets = args.targets.unwrap_or(site.site.targets);
             site.dense.noise_px = args.dense_noise;
+            site.dense.point_noise_m = args.dense_point_noise * 1e-3;
+            site.dense.point_noise_along = match args.dense_noise_along {
+                NoiseAlong::Normal => NoiseDirection::Normal,
+                NoiseAlong::Ray => NoiseDirection::Ray,
+            };
+            site.dense.outlier_fraction = args.dense_outliers;
+            site.dense.pipe_spacing_at_width_m = args.dense_spacing.map(|mm| mm * 1e-3);
             site.plant = args.plant;
             if let Some(o) = args.tls_offset {
                 site.tls.offset = o.into();
             }
             opts.validate().map_err(|e| usage(e.to_string()))?;
             site.site.validate().map_err(|e| usage(e.to_string()))?;
-            let total = frames_to_render(&opts, args.frames).unwrap_or(args.frames);
+            let total = frames_to_render(&opts, site.site.frames).unwrap_or(site.site.frames);
             let progress = bar(total as u64, "rendering", globals.quiet);
             let truth = simulate_site(&opts, &site, &args.common.out, &|done| {
                 progress.set_position(done as u64)

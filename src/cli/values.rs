@@ -58,6 +58,17 @@ pub fn semi_minor_px(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A fraction of outliers, in [0, 0.5].
+pub fn outlier_fraction(s: &str) -> Result<f64, String> {
+    let v = non_negative(s)?;
+    if v > 0.5 {
+        return Err(format!(
+            "{s}: an outlier fraction must be between 0 and 0.5"
+        ));
+    }
+    Ok(v)
+}
+
 /// A fraction in [0, 1).
 pub fn below_one(s: &str) -> Result<f64, String> {
     let v = non_negative(s)?;

@@ -46,7 +46,35 @@ pub struct DenseConfig {
     pub max_views: usize,
     /// Fewest observations for a point to be kept, default 3.
     pub min_views: usize,
+    /// σ of a 3D error of each dense point (m, true units), default 0: a multi-view stereo
+    /// depth map's error, the same wherever the point is observed (the pixel noise above is
+    /// the matching's, independent per view).
+    pub point_noise_m: f64,
+    /// The direction of that error, default along the surface normal.
+    pub point_noise_along: NoiseDirection,
+    /// Fraction of points that are outliers (0–0.5), default 0: their depth along their
+    /// reference view's ray off by up to ±[`OUTLIER_DEPTH_FRACTION`] of it (uniform), seen
+    /// there in every view, as a wrong depth that passed fusion is.
+    pub outlier_fraction: f64,
+    /// Spacing of points on the pipes at the frames' own width (m), overriding
+    /// `pipe_spacing_m`'s scaling with the width: a denser or sparser cloud than the default.
+    pub pipe_spacing_at_width_m: Option<f64>,
 }
+
+/// Along which direction a dense point's 3D error lies ([`DenseConfig::point_noise_m`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum NoiseDirection {
+    /// The surface normal (a surface sampled with noise off the surface).
+    #[default]
+    Normal,
+    /// The viewing ray of the point's reference view (a depth map's error, as multi-view
+    /// stereo gives).
+    Ray,
+}
+
+/// Largest depth error of an outlier, as a fraction of its depth ([`DenseConfig::outlier_fraction`]).
+pub const OUTLIER_DEPTH_FRACTION: f64 = 0.1;
 
 impl Default for DenseConfig {
     fn default() -> Self {
@@ -56,6 +84,10 @@ impl Default for DenseConfig {
             noise_px: 0.3,
             max_views: 8,
             min_views: 3,
+            point_noise_m: 0.0,
+            point_noise_along: NoiseDirection::Normal,
+            outlier_fraction: 0.0,
+            pipe_spacing_at_width_m: None,
         }
     }
 }
@@ -97,15 +129,22 @@ impl DenseConfig {
     #[must_use]
     pub fn spacings(&self, width: u32) -> (f64, f64) {
         let scale = 3840.0 / f64::from(width);
-        (self.pipe_spacing_m * scale, self.surface_spacing_m * scale)
+        (
+            self.pipe_spacing_at_width_m
+                .unwrap_or(self.pipe_spacing_m * scale),
+            self.surface_spacing_m * scale,
+        )
     }
 }
 
 /// Points on the pipe site's surfaces and their labels: pipes around their full circumference
-/// over the central 2.4 m, the wall behind the pipes and the floor in front of them.
+/// over the central 2.4 m (a pipe of finite length over its whole length), the end caps of
+/// capped pipes (label `NAME_cap`), the wall behind the pipes and the floor in front of them.
+/// `pipes` are the site's pipe specifications, in the order of the scene's cylinders.
 #[must_use]
 pub fn site_samples(
     scene: &Scene,
+    pipes: &[super::site::PipeSpec],
     pipe_spacing: f64,
     surface_spacing: f64,
 ) -> (Vec<Sample>, Vec<String>) {
@@ -114,9 +153,14 @@ pub fn site_samples(
     let mut out = Vec::new();
     let label_of_pipe = |k: usize| (2 + k) as u8;
     for (k, c) in scene.cylinders.iter().enumerate() {
-        let (_, _, length, radius) = c.geometry();
+        let (start, dir, length, radius) = c.geometry();
         let n_around = (std::f64::consts::TAU * radius / pipe_spacing).ceil() as usize;
-        let (s0, s1) = (length / 2.0 - 1.2, length / 2.0 + 1.2);
+        let finite = pipes.get(k).is_some_and(|p| p.length_m.is_some());
+        let (s0, s1) = if finite {
+            (0.0, length)
+        } else {
+            (length / 2.0 - 1.2, length / 2.0 + 1.2)
+        };
         let n_along = ((s1 - s0) / pipe_spacing).ceil() as usize;
         for i in 0..n_along {
             let s = s0 + (i as f64 + 0.5) * (s1 - s0) / n_along as f64;
@@ -124,6 +168,33 @@ pub fn site_samples(
                 let phi = std::f64::consts::TAU * (j as f64 + 0.5) / n_around as f64;
                 let (p, n) = c.surface(phi, s);
                 out.push((p, n, label_of_pipe(k)));
+            }
+        }
+        if !pipes.get(k).is_some_and(|p| p.capped) {
+            continue;
+        }
+        // The caps' outer faces: rings of the pipe spacing (their rims are the pipe's ends).
+        labels.push(format!("{}_cap", c.name));
+        let cap_label = (labels.len() - 1) as u8;
+        let (e1, e2) = {
+            let helper = if dir.z.abs() < 0.9 {
+                Vector3::z()
+            } else {
+                Vector3::x()
+            };
+            let e1 = helper.cross(&dir).normalize();
+            (e1, dir.cross(&e1))
+        };
+        for (centre, normal) in [(start, -dir), (start + dir * length, dir)] {
+            let rings = (radius / pipe_spacing).ceil() as usize;
+            for i in 0..rings {
+                let rho = radius * (i as f64 + 0.5) / rings as f64;
+                let n_ring = ((std::f64::consts::TAU * rho / pipe_spacing).ceil() as usize).max(1);
+                for j in 0..n_ring {
+                    let phi = std::f64::consts::TAU * (j as f64 + 0.5) / n_ring as f64;
+                    let p = centre + (e1 * phi.cos() + e2 * phi.sin()) * rho;
+                    out.push((p, normal, cap_label));
+                }
             }
         }
     }
@@ -152,14 +223,30 @@ pub fn site_samples(
     (out, labels)
 }
 
-/// How a frame sees a surface point: `observe(frame, point, normal)`, its pixel or `None` (a
-/// moving rolling-shutter camera, [`super::video`], sees each point in its own row).
-pub type Observer<'a> =
-    dyn Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + 'a;
+/// How a frame sees a surface point: `observe(frame, point, normal, at)` is `None` when the
+/// frame does not see `point` (normal `normal`), else the pixel of `at` (the point itself, or
+/// where the reconstruction misplaces it) and the camera centre it is seen from (a moving
+/// rolling-shutter camera, [`super::video`], sees each point in its own row).
+pub type Observer<'a> = dyn ObserverFn + 'a;
+
+/// The function behind an [`Observer`].
+pub trait ObserverFn:
+    Fn(usize, &Point3<f64>, &Vector3<f64>, &Point3<f64>) -> Option<(Vector2<f64>, Point3<f64>)> + Sync
+{
+}
+
+impl<F> ObserverFn for F where
+    F: Fn(usize, &Point3<f64>, &Vector3<f64>, &Point3<f64>) -> Option<(Vector2<f64>, Point3<f64>)>
+        + Sync
+{
+}
 
 /// The dense observations of surface points `samples` (point, outward normal, label: an index
 /// into `labels`): each in every frame `observe` sees it in, at most `config.max_views` spread
-/// over them, with pixel noise; points seen in fewer than `config.min_views` dropped.
+/// over them, with pixel noise; points seen in fewer than `config.min_views` dropped. With a
+/// 3D error ([`DenseConfig::point_noise_m`], outliers) the kept views observe the misplaced
+/// point (its visibility stays the surface point's); the reference view of a ray error is
+/// one of the kept views, drawn.
 #[must_use]
 pub fn observe_samples(
     samples: &[Sample],
@@ -174,7 +261,7 @@ pub fn observe_samples(
         .enumerate()
         .filter_map(|(k, (p, n, label))| {
             let seen: Vec<(usize, Vector2<f64>)> = (0..frame_names.len())
-                .filter_map(|f| observe(f, p, n).map(|uv| (f, uv)))
+                .filter_map(|f| observe(f, p, n, p).map(|(uv, _)| (f, uv)))
                 .collect();
             if seen.len() < config.min_views {
                 return None;
@@ -189,6 +276,16 @@ pub fn observe_samples(
             };
             let mut rng =
                 ChaCha8Rng::seed_from_u64(seed ^ (k as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let keep = match misplaced(p, n, &keep, observe, config, &mut rng) {
+                Some(at) => keep
+                    .iter()
+                    .filter_map(|&(f, _)| observe(f, p, n, &at).map(|(uv, _)| (f, uv)))
+                    .collect(),
+                None => keep,
+            };
+            if keep.len() < config.min_views {
+                return None;
+            }
             let observations = keep
                 .into_iter()
                 .map(|(f, uv)| PixelObservation {
@@ -209,6 +306,38 @@ pub fn observe_samples(
         labels,
         points,
     }
+}
+
+/// Where the reconstruction places the surface point `p` (normal `n`, seen in the views
+/// `keep`): `None` when it is exact (no 3D error configured); otherwise off by the point noise
+/// along the normal or the reference view's ray, or, for an outlier, by a depth error along
+/// that ray. Draws from `rng` in a fixed order.
+fn misplaced(
+    p: &Point3<f64>,
+    n: &Vector3<f64>,
+    keep: &[(usize, Vector2<f64>)],
+    observe: &Observer<'_>,
+    config: &DenseConfig,
+    rng: &mut ChaCha8Rng,
+) -> Option<Point3<f64>> {
+    use rand::Rng;
+    if config.point_noise_m <= 0.0 && config.outlier_fraction <= 0.0 {
+        return None;
+    }
+    let reference = keep[rng.random_range(0..keep.len())].0;
+    let (_, eye) = observe(reference, p, n, p)?;
+    let ray = (p - eye).normalize();
+    let outlier = rng.random::<f64>() < config.outlier_fraction;
+    let e = gaussian(rng) * config.point_noise_m;
+    if outlier {
+        let depth = (p - eye).norm();
+        let off = rng.random_range(-1.0..1.0) * OUTLIER_DEPTH_FRACTION * depth;
+        return Some(p + ray * off);
+    }
+    Some(match config.point_noise_along {
+        NoiseDirection::Normal => p + n * e,
+        NoiseDirection::Ray => p + ray * e,
+    })
 }
 
 /// Triangulates every dense point through `camera` at `poses` (any frame, e.g. the SfM

@@ -379,7 +379,7 @@ fn film<'a>(
         scene,
         camera,
         &stations,
-        Some(&filming.dense_observer()),
+        Some(&filming.sparse_observer()),
         options,
         out,
     )?;
@@ -502,7 +502,7 @@ pub fn lab_geometry(
             &names,
             &options.sfm,
             options.seed,
-            &filming.dense_observer(),
+            &filming.sparse_observer(),
         ),
         None => stand_in(&scene, &camera, &poses, &names, &options.sfm, options.seed),
     };
@@ -583,10 +583,18 @@ pub fn simulate_site(
             super::plant_site::surface_samples(room, pipe_spacing, surface_spacing),
             super::plant_site::labels(&room.truth),
         ),
-        None => site_samples(&scene, pipe_spacing, surface_spacing),
+        None => site_samples(&scene, &site.site.pipes, pipe_spacing, surface_spacing),
     };
-    let still = |f: usize, p: &nalgebra::Point3<f64>, n: &nalgebra::Vector3<f64>| {
-        super::sfm::observe(&scene, &camera, &poses[f], p, n)
+    let still = |f: usize,
+                 p: &nalgebra::Point3<f64>,
+                 n: &nalgebra::Vector3<f64>,
+                 at: &nalgebra::Point3<f64>| {
+        let uv = super::sfm::observe(&scene, &camera, &poses[f], p, n)?;
+        let eye = crate::geometry::pose::camera_centre(&poses[f]);
+        if at == p {
+            return Some((uv, eye));
+        }
+        Some((camera.project_world(&poses[f], &at.coords)?, eye))
     };
     // A video's frames see each point in its own row (the cloud then carries the rolling
     // shutter's distortion, as a dense reconstruction of such frames does).

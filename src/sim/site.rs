@@ -33,6 +33,49 @@ pub struct PipeSpec {
     pub wall_distance_m: f64,
     /// Height of the axis above the floor (m).
     pub height_m: f64,
+    /// Length (m), centred on `centre_x_m`; `None`: the whole wall's width (both ends beyond
+    /// the part of the scene that is sampled and scanned).
+    #[serde(default)]
+    pub length_m: Option<f64>,
+    /// Where along x the middle of a pipe of finite length lies (m).
+    #[serde(default)]
+    pub centre_x_m: f64,
+    /// Flat end caps on a pipe of finite length (a capped pipe, as a pressure test or an
+    /// independent renderer's scene has them): discs that occlude, are rendered, sampled in
+    /// the dense cloud and scanned.
+    #[serde(default)]
+    pub capped: bool,
+}
+
+impl PipeSpec {
+    /// A pipe running the wall's whole width (no ends in view).
+    #[must_use]
+    pub fn full_width(name: &str, radius_m: f64, wall_distance_m: f64, height_m: f64) -> Self {
+        PipeSpec {
+            name: name.into(),
+            radius_m,
+            wall_distance_m,
+            height_m,
+            length_m: None,
+            centre_x_m: 0.0,
+            capped: false,
+        }
+    }
+
+    /// The pipe's axis: its start (smaller x), unit direction (+x) and length.
+    #[must_use]
+    pub fn axis(&self) -> (Point3<f64>, Vector3<f64>, f64) {
+        let length = self.length_m.unwrap_or(2.0 * HALF_WIDTH_M);
+        (
+            Point3::new(
+                self.centre_x_m - 0.5 * length,
+                self.wall_distance_m,
+                self.height_m,
+            ),
+            Vector3::x(),
+            length,
+        )
+    }
 }
 
 /// Site content.
@@ -49,35 +92,24 @@ pub struct SiteConfig {
     pub frames: usize,
     /// Distance of the camera path from the pipe of interest (m), default 1.5.
     pub path_radius_m: f64,
+    /// How far the path's distance swings either side of `path_radius_m` over the path (m),
+    /// default 0.
+    pub path_radius_spread_m: f64,
 }
 
 impl Default for SiteConfig {
     fn default() -> Self {
         SiteConfig {
             pipes: vec![
-                PipeSpec {
-                    name: "pipe_6in".into(),
-                    radius_m: PIPE_6IN_RADIUS_M,
-                    wall_distance_m: 0.55,
-                    height_m: 0.9,
-                },
-                PipeSpec {
-                    name: "pipe_4in".into(),
-                    radius_m: PIPE_4IN_RADIUS_M,
-                    wall_distance_m: 0.45,
-                    height_m: 1.45,
-                },
-                PipeSpec {
-                    name: "pipe_2in".into(),
-                    radius_m: PIPE_2IN_RADIUS_M,
-                    wall_distance_m: 0.35,
-                    height_m: 1.95,
-                },
+                PipeSpec::full_width("pipe_6in", PIPE_6IN_RADIUS_M, 0.55, 0.9),
+                PipeSpec::full_width("pipe_4in", PIPE_4IN_RADIUS_M, 0.45, 1.45),
+                PipeSpec::full_width("pipe_2in", PIPE_2IN_RADIUS_M, 0.35, 1.95),
             ],
             pipe_of_interest: 1,
             targets: 8,
             frames: 60,
             path_radius_m: 1.5,
+            path_radius_spread_m: 0.0,
         }
     }
 }
@@ -99,7 +131,46 @@ pub struct SiteConfigError {
     pub reason: String,
 }
 
+/// The two-pipe layout ([`SiteConfig::two_pipes`]): the 2" pipe's axis from the wall (m).
+const TWO_PIPES_FRONT_WALL_M: f64 = 0.52;
+/// How much further back (toward the wall) the 6" pipe's axis lies (m).
+const TWO_PIPES_DEPTH_STEP_M: f64 = 0.14;
+
 impl SiteConfig {
+    /// A site unlike the default one, as an independent renderer's scene was: two capped
+    /// pipes, a 2" one (1.16 m long) in front of a 6" one (1.6 m long) whose axis lies 0.14 m
+    /// further back and 4 cm lower, so the front pipe hides a strip of the back one in most
+    /// frames; 20 frames on an arc around the 2" pipe at 1.35–1.9 m. The 2" pipe is the pipe
+    /// of interest.
+    #[must_use]
+    pub fn two_pipes() -> Self {
+        let front = PipeSpec {
+            length_m: Some(1.16),
+            centre_x_m: 0.05,
+            capped: true,
+            ..PipeSpec::full_width("pipe_2in", PIPE_2IN_RADIUS_M, TWO_PIPES_FRONT_WALL_M, 1.3)
+        };
+        let back = PipeSpec {
+            length_m: Some(1.6),
+            centre_x_m: -0.1,
+            capped: true,
+            ..PipeSpec::full_width(
+                "pipe_6in",
+                PIPE_6IN_RADIUS_M,
+                TWO_PIPES_FRONT_WALL_M - TWO_PIPES_DEPTH_STEP_M,
+                1.26,
+            )
+        };
+        SiteConfig {
+            pipes: vec![front, back],
+            pipe_of_interest: 0,
+            targets: 10,
+            frames: 20,
+            path_radius_m: 1.625,
+            path_radius_spread_m: 0.275,
+        }
+    }
+
     /// Checks the values.
     ///
     /// # Errors
@@ -125,6 +196,16 @@ impl SiteConfig {
                     "each pipe needs a radius of 5–500 mm, clear of the wall and floor",
                 );
             }
+            let (start, _, length) = p.axis();
+            if !(length > 0.0 && start.x >= -HALF_WIDTH_M && start.x + length <= HALF_WIDTH_M) {
+                return bad(
+                    "pipes",
+                    "a pipe's length must be positive and lie within the wall's 5 m width",
+                );
+            }
+            if p.capped && p.length_m.is_none() {
+                return bad("pipes", "only a pipe of finite length can be capped");
+            }
         }
         if !(2..=40).contains(&self.targets) {
             return bad("targets", "must be between 2 and 40");
@@ -134,6 +215,12 @@ impl SiteConfig {
         }
         if !(0.5..=6.0).contains(&self.path_radius_m) {
             return bad("path_radius_m", "must be between 0.5 and 6 m");
+        }
+        if !(0.0..=0.5 * self.path_radius_m).contains(&self.path_radius_spread_m) {
+            return bad(
+                "path_radius_spread_m",
+                "must be between 0 and half the path's radius",
+            );
         }
         Ok(())
     }
@@ -150,13 +237,16 @@ impl SiteConfig {
         self.pipes
             .iter()
             .enumerate()
-            .map(|(k, p)| PipeTruth {
-                name: p.name.clone(),
-                radius: p.radius_m,
-                axis_point: [0.0, p.wall_distance_m, p.height_m],
-                axis_direction: [1.0, 0.0, 0.0],
-                length: 2.0 * HALF_WIDTH_M,
-                of_interest: k == self.pipe_of_interest,
+            .map(|(k, p)| {
+                let (start, dir, length) = p.axis();
+                PipeTruth {
+                    name: p.name.clone(),
+                    radius: p.radius_m,
+                    axis_point: (start + dir * (0.5 * length)).into(),
+                    axis_direction: dir.into(),
+                    length,
+                    of_interest: k == self.pipe_of_interest,
+                }
             })
             .collect()
     }
@@ -202,14 +292,15 @@ pub fn build_scene(config: &SiteConfig, texel_m: f64, seed: u64) -> Scene {
         .enumerate()
         .map(|(k, p)| {
             let circumference = std::f64::consts::TAU * p.radius_m;
+            let (start, dir, length) = p.axis();
             Cylinder::new(
                 &p.name,
-                Point3::new(-HALF_WIDTH_M, p.wall_distance_m, p.height_m),
-                Vector3::x(),
-                w,
+                start,
+                dir,
+                length,
                 p.radius_m,
                 Texture::bake_periodic(
-                    (circumference, w),
+                    (circumference, length),
                     texel_m,
                     TextureStyle::PIPE,
                     seed ^ (0x60 + k as u64),
@@ -231,6 +322,7 @@ pub fn build_scene(config: &SiteConfig, texel_m: f64, seed: u64) -> Scene {
             },
         ],
         ambient: 0.35,
+        solids: caps(config),
         ..Default::default()
     };
     // Targets around and behind the pipes: a jittered ring of positions on the wall in the
@@ -254,6 +346,44 @@ pub fn build_scene(config: &SiteConfig, texel_m: f64, seed: u64) -> Scene {
     scene
 }
 
+/// Thickness of a pipe's end cap (m): a plate welded on, as on a pressure-test spool.
+const CAP_THICKNESS_M: f64 = 0.004;
+/// Albedo of the end caps (painted steel, a little darker than the pipes' mean).
+const CAP_ALBEDO: f64 = 0.45;
+
+/// The capped pipes' end caps as solids: a disc of the pipe's radius, [`CAP_THICKNESS_M`]
+/// thick, closing each end (its outer face at the pipe's end). `None` without capped pipes.
+fn caps(config: &SiteConfig) -> Option<std::sync::Arc<super::scene::Solids>> {
+    use parry3d_f64::shape::SharedShape;
+    let shapes: Vec<_> = config
+        .pipes
+        .iter()
+        .filter(|p| p.capped)
+        .flat_map(|p| {
+            let (start, dir, length) = p.axis();
+            let ends = [
+                (start.coords, start.coords + dir * CAP_THICKNESS_M),
+                (
+                    start.coords + dir * (length - CAP_THICKNESS_M),
+                    start.coords + dir * length,
+                ),
+            ];
+            ends.map(|(a, b)| {
+                let (pose, cylinder) = crate::geometry::solid::cylinder_between(&a, &b, p.radius_m);
+                (pose, SharedShape::new(cylinder))
+            })
+        })
+        .collect();
+    if shapes.is_empty() {
+        return None;
+    }
+    let albedo = vec![CAP_ALBEDO; shapes.len()];
+    Some(std::sync::Arc::new(super::scene::Solids {
+        compound: parry3d_f64::shape::Compound::new(shapes),
+        albedo,
+    }))
+}
+
 /// The reference irradiance for the exposure: the wall behind the pipe of interest.
 #[must_use]
 pub fn reference_irradiance(scene: &Scene) -> f64 {
@@ -267,7 +397,7 @@ pub fn reference_irradiance(scene: &Scene) -> f64 {
 pub fn path(config: &SiteConfig, seed: u64) -> Vec<Station> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x9B7);
     let p = config.interest();
-    let centre = Point3::new(0.0, p.wall_distance_m, p.height_m);
+    let centre = Point3::new(p.centre_x_m, p.wall_distance_m, p.height_m);
     let n = config.frames;
     let n_first = n.div_ceil(2);
     (0..n)
@@ -284,6 +414,9 @@ pub fn path(config: &SiteConfig, seed: u64) -> Vec<Station> {
                 )
             };
             let theta = (-55.0 + 110.0 * phase).to_radians();
+            // The distance swings once in and out over each pass.
+            let radius = config.path_radius_m
+                + config.path_radius_spread_m * (std::f64::consts::TAU * phase).cos();
             let height = 1.45
                 + 0.3
                     * (std::f64::consts::TAU * phase
@@ -294,10 +427,8 @@ pub fn path(config: &SiteConfig, seed: u64) -> Vec<Station> {
                         })
                     .sin();
             let eye = Point3::new(
-                config.path_radius_m * theta.sin() + rng.random_range(-0.03..0.03),
-                p.wall_distance_m
-                    + config.path_radius_m * theta.cos()
-                    + rng.random_range(-0.03..0.03),
+                centre.x + radius * theta.sin() + rng.random_range(-0.03..0.03),
+                p.wall_distance_m + radius * theta.cos() + rng.random_range(-0.03..0.03),
                 height,
             );
             let target = centre

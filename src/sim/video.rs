@@ -630,16 +630,26 @@ impl<'a> Filming<'a> {
         Ok(self.truth(full_rate))
     }
 
-    /// How the extracted frames see surface points, for the site's dense observations: point
-    /// `p` (normal `n`) in frame `f` at its exact rolling-shutter pixel, when in front, facing
-    /// the camera, inside the frame (1 px margin) and unoccluded at the time it is seen.
-    pub fn dense_observer(
+    /// How the extracted frames see surface points, for the SfM stand-in's features: the
+    /// exact rolling-shutter pixel of a point seen ([`Filming::dense_observer`] at the point
+    /// itself).
+    pub fn sparse_observer(
         &self,
     ) -> impl Fn(usize, &Point3<f64>, &Vector3<f64>) -> Option<Vector2<f64>> + Sync + '_ {
+        let dense = self.dense_observer();
+        move |f, p, n| dense(f, p, n, p).map(|(uv, _)| uv)
+    }
+
+    /// How the extracted frames see surface points, for the site's dense observations: point
+    /// `p` (normal `n`) in frame `f` when in front, facing the camera, inside the frame (1 px
+    /// margin) and unoccluded at the time it is seen; then the exact rolling-shutter pixel of
+    /// `at` (`p`, or where the reconstruction misplaces it) and the camera centre at that
+    /// time ([`super::dense::Observer`]).
+    pub fn dense_observer(&self) -> impl super::dense::ObserverFn + '_ {
         let cameras: Vec<BrownCamera> = (0..self.orientations.len())
             .map(|k| breathing_camera(&self.camera, self.breathing(self.main_time(k))))
             .collect();
-        move |f, p, n| {
+        move |f, p, n, at| {
             let camera = &cameras[f];
             let shutter = self.shutter(self.main_time(f));
             let frame_pose = self.trajectory.cam_from_world(shutter.time_s);
@@ -664,7 +674,17 @@ impl<'a> Filming<'a> {
             {
                 return None;
             }
-            Some(seen.uv)
+            if at == p {
+                return Some((seen.uv, eye));
+            }
+            let moved = project_rolling_shutter(
+                camera,
+                &shutter,
+                |t| self.trajectory.cam_from_world(t),
+                &at.coords,
+                Some(seen.uv.y),
+            )?;
+            Some((moved.uv, eye))
         }
     }
 
