@@ -211,7 +211,7 @@ fn plane_fit(pts: &[Vector3<f64>], keep: &[bool]) -> Option<(Vector3<f64>, Vecto
 /// (trigonometric eigenvalues, the eigenvector as the largest cross product of two rows of
 /// `A − λI`): far cheaper than an iterative decomposition for millions of neighbourhoods. Falls
 /// back to the iterative one when the smallest eigenvalue is (nearly) repeated.
-fn smallest_eigen(a: &Matrix3<f64>) -> Option<(Vector3<f64>, f64)> {
+pub(crate) fn smallest_eigen(a: &Matrix3<f64>) -> Option<(Vector3<f64>, f64)> {
     let p1 = a[(0, 1)].powi(2) + a[(0, 2)].powi(2) + a[(1, 2)].powi(2);
     let q = a.trace() / 3.0;
     let p2 = (a[(0, 0)] - q).powi(2) + (a[(1, 1)] - q).powi(2) + (a[(2, 2)] - q).powi(2) + 2.0 * p1;

@@ -67,6 +67,10 @@ pub struct NetworkConfig {
     /// mean residual, their RMS less the noise's share): a tenth of a millimetre on a round pipe (ASTM A530's out-of-roundness, 1.5 % of the
     /// outside diameter, is 0.3 mm RMS on a 2-inch pipe), millimetres on a box's edge.
     pub max_shape_departure_m: f64,
+    /// Largest share of a candidate's points that may lie just inside or just outside its
+    /// band, relative to those in it: a sampled surface's noise leaves a few per cent there
+    /// (0.3 % for Gaussian noise), the flank of another surface more than its band holds.
+    pub max_flank_ratio: f64,
     /// Largest angle between two axes that are one (rad).
     pub coaxial_angle: f64,
     /// Largest distance between two axes that are one, as a fraction of the smaller radius.
@@ -96,6 +100,7 @@ impl Default for NetworkConfig {
             min_normal_turn: 0.2,
             max_normal_deviation: 12f64.to_radians(),
             max_shape_departure_m: 1.2e-3,
+            max_flank_ratio: 0.5,
             coaxial_angle: 5f64.to_radians(),
             coaxial_offset: 0.5,
             material: PipeMaterial::Steel,
@@ -182,6 +187,18 @@ pub enum Refusal {
         /// Their systematic departure from the circle (mm).
         shape_departure_mm: f64,
     },
+    /// Its points are the flank of a denser surface (the noise or outliers just off another
+    /// pipe): more points lie just inside or just outside its band than in it.
+    Flank {
+        /// Points in its band.
+        band_points: usize,
+        /// Points just inside it.
+        inside_points: usize,
+        /// Points just outside it.
+        outside_points: usize,
+        /// Half-width of the band (mm).
+        band_mm: f64,
+    },
     /// Too short for a pipe segment.
     TooShort {
         /// Its length (m).
@@ -232,6 +249,15 @@ impl std::fmt::Display for Refusal {
             } => write!(
                 f,
                 "not a round surface (points over {coverage_deg:.0}°, normals over {normal_arc_deg:.0}° turning {normal_turn:.2}× with them, {normal_deviation_deg:.0}° off radial, {shape_departure_mm:.2} mm RMS off the circle): flat faces (a box, a column, a support) or several thin objects"
+            ),
+            Refusal::Flank {
+                band_points,
+                inside_points,
+                outside_points,
+                band_mm,
+            } => write!(
+                f,
+                "not a surface of its own: {band_points} points within ±{band_mm:.1} mm of it, {inside_points} just inside and {outside_points} just outside (the noise or outliers beside another surface)"
             ),
             Refusal::NoFit => write!(f, "its points alone do not fit a cylinder"),
             Refusal::RadiusOutOfRange { min_m, max_m } => write!(
@@ -461,6 +487,20 @@ fn accept(
         let coverage_deg = p.coverage.to_degrees();
         if p.coverage < config.min_coverage_rad {
             refused.push(refuse(&p, Refusal::NarrowArc { coverage_deg }));
+            continue;
+        }
+        let flanks = p.flanks;
+        if (flanks.inside.max(flanks.outside) as f64) > config.max_flank_ratio * flanks.band as f64
+        {
+            refused.push(refuse(
+                &p,
+                Refusal::Flank {
+                    band_points: flanks.band,
+                    inside_points: flanks.inside,
+                    outside_points: flanks.outside,
+                    band_mm: flanks.band_m * 1e3,
+                },
+            ));
             continue;
         }
         if p.normal_turn < config.min_normal_turn

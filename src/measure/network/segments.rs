@@ -2,11 +2,14 @@
 //! re-fitted alone on its straight part.
 
 use nalgebra::Vector3;
+use rayon::prelude::*;
 
 use super::super::cloud::Cloud;
 use super::super::cylinder::{Cylinder, refit_among};
 use super::NetworkConfig;
-use super::shape::{normal_arc, normal_deviation, normal_turn, shape_departure};
+use super::shape::{
+    Flanks, Patches, SHAPE_SAMPLE, normal_arc, normal_deviation, normal_turn, shape_departure,
+};
 use crate::robust::upper_median;
 
 /// A stretch of a candidate's inliers along its axis, re-fitted.
@@ -26,6 +29,8 @@ pub(super) struct Piece {
     pub(super) normal_turn: f64,
     /// [`shape_departure`] (m).
     pub(super) departure: f64,
+    /// The points across its surface ([`Flanks`]).
+    pub(super) flanks: Flanks,
     pub(super) start: Vector3<f64>,
     pub(super) end: Vector3<f64>,
     /// The extreme inliers before the straight part was cut, on the axis, in `start`/`end`
@@ -49,9 +54,10 @@ pub(super) fn pieces_of(
     let mut order: Vec<(f64, usize)> = inliers.iter().map(|&k| (along(k, cyl), k)).collect();
     order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     let mut out = Vec::new();
+    let patches = Patches::new(cloud, cyl, inliers);
     let runs = order
         .chunk_by(|a, b| b.0 - a.0 <= config.gap_m)
-        .flat_map(|run| split_unbridged(cloud, cyl, run, config.gap_m));
+        .flat_map(|run| split_unbridged(cloud, cyl, &patches, run, config.gap_m));
     for run in runs {
         if run.len() < config.cylinder.min_inliers {
             continue;
@@ -68,9 +74,11 @@ pub(super) fn pieces_of(
                     .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), t| {
                         (lo.min(t), hi.max(t))
                     });
-                let normal_arc = normal_arc(cloud, &c, &fit.inlier_indices);
-                let normal_deviation = normal_deviation(cloud, &c, &fit.inlier_indices);
-                let normal_turn = normal_turn(cloud, &c, &fit.inlier_indices).unwrap_or(0.0);
+                let patches = Patches::new(cloud, &c, &fit.inlier_indices);
+                let oriented = patches.oriented(cloud, &c, &fit.inlier_indices);
+                let normal_arc = normal_arc(&c, &oriented);
+                let normal_deviation = normal_deviation(&c, &oriented);
+                let normal_turn = normal_turn(&c, &oriented).unwrap_or(0.0);
                 let departure = shape_departure(cloud, &c, &fit.inlier_indices);
                 Piece {
                     cylinder: c,
@@ -81,6 +89,7 @@ pub(super) fn pieces_of(
                     normal_deviation,
                     normal_turn,
                     departure,
+                    flanks: patches.flanks,
                     start: c.point + c.direction * lo,
                     end: c.point + c.direction * hi,
                     raw: raw.map(|q| c.point + c.direction * (q - c.point).dot(&c.direction)),
@@ -97,6 +106,7 @@ pub(super) fn pieces_of(
                 normal_deviation: std::f64::consts::FRAC_PI_2,
                 normal_turn: 0.0,
                 departure: f64::INFINITY,
+                flanks: Flanks::default(),
                 start: cyl.point + cyl.direction * run[0].0,
                 end: cyl.point + cyl.direction * run[run.len() - 1].0,
                 raw: [
@@ -117,37 +127,53 @@ pub(super) fn pieces_of(
 pub(super) const BRIDGE_NORMAL_ANGLE_DEG: f64 = 15.0;
 
 /// The run `run` (inliers `(t, k)` in axial order, no gap over `gap`) split where no point
-/// with a radial normal (within [`BRIDGE_NORMAL_ANGLE_DEG`]) lies over more than `gap`: the
-/// points in such a stretch are dropped. A pipe's surface has radial normals; where a
-/// valve's box or a support's face crosses the candidate's surface, its points pass the
-/// inlier test (normals within 30°) along lines at the faces' angle and had joined a
-/// valve's two flange rims, 0.66 m apart, into one "pipe". A run without such a stretch is
-/// returned whole, unchanged.
+/// with a radial normal (its patch's, [`Patches`], within [`BRIDGE_NORMAL_ANGLE_DEG`]) lies
+/// over more than `gap`: the points in such a stretch are dropped. A pipe's surface has
+/// radial normals; where a valve's box or a support's face crosses the candidate's surface,
+/// its points pass the inlier test (normals within 30°) along lines at the faces' angle and
+/// had joined a valve's two flange rims, 0.66 m apart, into one "pipe"; outliers scattered
+/// through the band beyond a capped pipe's end have no patch of their own and had carried
+/// its segment on along the pipe behind it. For the same reason the run's points before its
+/// first and after its last radial point are dropped: its extreme inliers are where its end
+/// is sought ([`super::ends`]), and a stray outlier is no end. The normals are read on an
+/// even stride of at most [`SHAPE_SAMPLE`] points of the run (and its first and last). A run
+/// without a radial point is returned whole.
 pub(super) fn split_unbridged<'a>(
     cloud: &Cloud,
     cyl: &Cylinder,
+    patches: &Patches,
     run: &'a [(f64, usize)],
     gap: f64,
 ) -> Vec<&'a [(f64, usize)]> {
     let cos_max = BRIDGE_NORMAL_ANGLE_DEG.to_radians().cos();
-    let radial: Vec<usize> = run
-        .iter()
-        .enumerate()
-        .filter(|&(_, &(_, k))| {
-            let (n, _) = cloud.local(k);
-            n.dot(&cyl.radial(&(cloud.point(k) + cloud.origin))).abs() >= cos_max
-        })
-        .map(|(i, _)| i)
+    let step = run.len().div_ceil(SHAPE_SAMPLE).max(1);
+    let sampled: Vec<usize> = (0..run.len())
+        .step_by(step)
+        .chain(std::iter::once(run.len() - 1))
         .collect();
+    let mut radial: Vec<usize> = sampled
+        .into_par_iter()
+        .filter(|&i| {
+            let k = run[i].1;
+            let p = cloud.point(k) + cloud.origin;
+            patches
+                .normal(cloud, k)
+                .is_some_and(|n| n.dot(&cyl.radial(&p)).abs() >= cos_max)
+        })
+        .collect();
+    radial.dedup();
+    let (Some(&first), Some(&last)) = (radial.first(), radial.last()) else {
+        return vec![run];
+    };
     let mut out = Vec::new();
-    let mut from = 0;
+    let mut from = first;
     for w in radial.windows(2) {
         if run[w[1]].0 - run[w[0]].0 > gap {
             out.push(&run[from..=w[0]]);
             from = w[1];
         }
     }
-    out.push(&run[from..]);
+    out.push(&run[from..=last]);
     out
 }
 

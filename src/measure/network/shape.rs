@@ -1,19 +1,271 @@
 //! Whether a candidate's points are a round surface: how its normals turn with the points
-//! about the axis and how the points depart from the circle, per azimuth bin.
+//! about the axis, how far they lie off the radial direction, and how the points depart from
+//! the circle, per azimuth bin.
+//!
+//! The normals these tests read are not the cloud's per-point ones (16 nearest neighbours):
+//! on a dense, noisy cloud — a multi-view stereo cloud of a thin pipe, a millimetre of noise
+//! at a millimetre's spacing — a 16-point neighbourhood is three millimetres across and its
+//! normal mostly noise (a 2-inch pipe came out 15° off radial, and was refused as flat
+//! faces). They come from [`Patches`]: every point of the cloud in the candidate's band
+//! within a patch of the candidate's own scale (a third of its radius), so that their noise
+//! averages out while a box's face, a column's edge or a thin conduit beside another still
+//! shows its own orientation. Where the cloud is sparser than that (a laser scan's far pipe),
+//! its own 16-point neighbourhoods are already as wide, and their normals are read.
 
-use super::super::cloud::Cloud;
+use std::collections::HashMap;
+
+use nalgebra::Vector3;
+use rayon::prelude::*;
+
+use super::super::cloud::{BOX_RUN, Cloud, NORMAL_NEIGHBOURS, smallest_eigen};
 use super::super::cylinder::{Cylinder, filled_arc};
-use crate::robust::upper_median;
+use crate::robust::{MAD_TO_SIGMA, upper_median};
 
-/// The arc the normals of the points `idx` fill about `c`'s axis (each normal turned outward).
-pub(super) fn normal_arc(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> f64 {
+/// A patch's radius as a fraction of the candidate's radius ([`Patches`]): wide enough to
+/// average millimetres of noise, narrow enough (19° of arc) that the surface within it is
+/// nearly flat.
+const PATCH_RADIUS_FRACTION: f64 = 1.0 / 3.0;
+/// Fewest points for a patch's normal.
+const MIN_PATCH_POINTS: usize = 8;
+/// Most points whose patch normals a test reads (an even stride through the inliers).
+pub(super) const SHAPE_SAMPLE: usize = 4096;
+
+/// A point with its outward normal from its patch (input frame).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Oriented {
+    /// The point.
+    pub(super) point: Vector3<f64>,
+    /// Its patch's normal, turned away from the axis.
+    pub(super) normal: Vector3<f64>,
+}
+
+/// The cloud's points near a candidate's surface, for normals at the candidate's scale and
+/// for the radial profile around its surface. Its **band** is the surface's own thickness,
+/// three times the inliers' robust residual scale; the patches hold the cloud's points within
+/// the band over the inliers' span along the axis and a patch beyond, on a grid of cells one
+/// patch wide (a face crossing the band leaves a strip of its own orientation there, not a
+/// sliver of the surface behind it); the **flanks** count the points just inside and just
+/// outside the band ([`Flanks`]).
+pub(super) struct Patches {
+    radius: f64,
+    /// Whether the cloud is denser than a patch ([`patch_radius`]): otherwise the cloud's
+    /// own normals are read.
+    dense: bool,
+    cells: HashMap<[i64; 3], Vec<Vector3<f64>>>,
+    /// The radial profile around the surface.
+    pub(super) flanks: Flanks,
+}
+
+/// How the points lie across a candidate's surface over its inliers' span: in its band
+/// (residual within ±band), just inside (−3 band … −band) and just outside (band … 3 band).
+/// A surface the sensor sampled has its points in the band and its noise's tail beside it; a
+/// candidate that is the flank of another surface — the noise or the outliers just off a
+/// denser pipe, fitted as a wider or narrower cylinder — has more points on one side of its
+/// band than in it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub(super) struct Flanks {
+    /// Half-width of the band (m).
+    pub(super) band_m: f64,
+    /// Points in the band.
+    pub(super) band: usize,
+    /// Points just inside it.
+    pub(super) inside: usize,
+    /// Points just outside it.
+    pub(super) outside: usize,
+}
+
+/// Width of a flank ([`Flanks`]) in bands.
+const FLANK_BANDS: f64 = 2.0;
+/// The narrowest band (m): a surface's points are never thinner than this, whatever the
+/// residuals' robust scale says.
+const MIN_BAND_M: f64 = 1e-4;
+
+impl Patches {
+    /// The patches of the candidate `c` whose inliers are `inliers` (cloud indices).
+    pub(super) fn new(cloud: &Cloud, c: &Cylinder, inliers: &[usize]) -> Self {
+        let (radius, dense) = patch_radius(cloud, c, inliers);
+        let mut abs: Vec<f64> = inliers
+            .iter()
+            .map(|&k| c.residual(&(cloud.point(k) + cloud.origin)).abs())
+            .collect();
+        let band = (3.0 * MAD_TO_SIGMA * upper_median(&mut abs)).max(MIN_BAND_M);
+        let along = |p: &Vector3<f64>| (p + cloud.origin - c.point).dot(&c.direction);
+        let (t0, t1) = inliers
+            .iter()
+            .map(|&k| along(&cloud.point(k)))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
+                (a.min(t), b.max(t))
+            });
+        let local = Cylinder {
+            point: c.point - cloud.origin,
+            ..*c
+        };
+        let reach = (1.0 + FLANK_BANDS) * band;
+        // Per point near the surface: (point, residual, within the inliers' span).
+        let near = |q: Vector3<f64>| {
+            let t = (q - local.point).dot(&local.direction);
+            if t < t0 - radius || t > t1 + radius {
+                return None;
+            }
+            let e = local.residual(&q);
+            (e.abs() <= reach).then_some((q, e, (t0..=t1).contains(&t)))
+        };
+        // Runs of the Z-order whose box misses the shell are skipped whole.
+        let runs = cloud.len().div_ceil(BOX_RUN);
+        let points: Vec<Vec<(Vector3<f64>, f64, bool)>> = (0..runs)
+            .into_par_iter()
+            .with_min_len(64)
+            .map(|run| {
+                let (centre, half) = cloud.run_box(run);
+                let rho = (centre - local.point).cross(&local.direction).norm();
+                if rho - half > local.radius + reach || rho + half < local.radius - reach {
+                    return Vec::new();
+                }
+                (run * BOX_RUN..((run + 1) * BOX_RUN).min(cloud.len()))
+                    .filter_map(|pos| near(cloud.point_at(pos)))
+                    .collect()
+            })
+            .collect();
+        let mut cells: HashMap<[i64; 3], Vec<Vector3<f64>>> = HashMap::new();
+        let mut flanks = Flanks {
+            band_m: band,
+            ..Flanks::default()
+        };
+        for (q, e, within) in points.into_iter().flatten() {
+            if e.abs() <= band {
+                cells.entry(cell_of(&q, radius)).or_default().push(q);
+                flanks.band += usize::from(within);
+            } else if within && e < 0.0 {
+                flanks.inside += 1;
+            } else if within {
+                flanks.outside += 1;
+            }
+        }
+        Patches {
+            radius,
+            dense,
+            cells,
+            flanks,
+        }
+    }
+
+    /// The normal at the cloud's point `k`: on a dense cloud its patch's ([`Patches::patch`]),
+    /// else the cloud's own.
+    pub(super) fn normal(&self, cloud: &Cloud, k: usize) -> Option<Vector3<f64>> {
+        if self.dense {
+            self.patch(&cloud.point(k))
+        } else {
+            Some(cloud.local(k).0)
+        }
+    }
+
+    /// The unit normal of the plane through the points within the patch radius of the local
+    /// point `q`, `None` with fewer than [`MIN_PATCH_POINTS`] or no single plane.
+    fn patch(&self, q: &Vector3<f64>) -> Option<Vector3<f64>> {
+        let [x, y, z] = cell_of(q, self.radius);
+        let r2 = self.radius * self.radius;
+        let (mut n, mut sum) = (0usize, Vector3::zeros());
+        let mut c = [0.0f64; 6];
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let Some(pts) = self.cells.get(&[x + dx, y + dy, z + dz]) else {
+                        continue;
+                    };
+                    for v in pts {
+                        let d = v - q;
+                        if d.norm_squared() > r2 {
+                            continue;
+                        }
+                        n += 1;
+                        sum += d;
+                        c[0] += d.x * d.x;
+                        c[1] += d.x * d.y;
+                        c[2] += d.x * d.z;
+                        c[3] += d.y * d.y;
+                        c[4] += d.y * d.z;
+                        c[5] += d.z * d.z;
+                    }
+                }
+            }
+        }
+        if n < MIN_PATCH_POINTS {
+            return None;
+        }
+        let m = sum / n as f64;
+        let f = 1.0 / n as f64;
+        let cov = nalgebra::Matrix3::new(
+            c[0] * f - m.x * m.x,
+            c[1] * f - m.x * m.y,
+            c[2] * f - m.x * m.z,
+            c[1] * f - m.x * m.y,
+            c[3] * f - m.y * m.y,
+            c[4] * f - m.y * m.z,
+            c[2] * f - m.x * m.z,
+            c[4] * f - m.y * m.z,
+            c[5] * f - m.z * m.z,
+        );
+        smallest_eigen(&cov).map(|(normal, _)| normal)
+    }
+
+    /// The points `idx` (cloud indices; at most [`SHAPE_SAMPLE`] of them, an even stride)
+    /// with their patch normals turned away from `c`'s axis; points without a patch normal are
+    /// left out.
+    pub(super) fn oriented(&self, cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> Vec<Oriented> {
+        let step = idx.len().div_ceil(SHAPE_SAMPLE).max(1);
+        idx.par_iter()
+            .step_by(step)
+            .filter_map(|&k| {
+                let point = cloud.point(k) + cloud.origin;
+                let n = self.normal(cloud, k)?;
+                let radial = c.offset(&point);
+                let normal = if n.dot(&radial) < 0.0 { -n } else { n };
+                Some(Oriented { point, normal })
+            })
+            .collect()
+    }
+}
+
+/// The grid cell of a local point for cells of side `size`.
+fn cell_of(q: &Vector3<f64>, size: f64) -> [i64; 3] {
+    [
+        (q.x / size).floor() as i64,
+        (q.y / size).floor() as i64,
+        (q.z / size).floor() as i64,
+    ]
+}
+
+/// The patch radius of the candidate `c` ([`Patches`]), [`PATCH_RADIUS_FRACTION`] of its
+/// radius, and whether the cloud is dense there: whether the cloud's own 16-point
+/// neighbourhoods, at its inliers' density (their count over the surface they fill: the arc
+/// they cover times the radius times their span along the axis), are narrower than a patch.
+/// Where they are not, they already average over as much of the surface as a patch would,
+/// and a wider patch on a sparse cloud would reach round the pipe's curve.
+fn patch_radius(cloud: &Cloud, c: &Cylinder, inliers: &[usize]) -> (f64, bool) {
     let (e1, e2) = c.cross_section_basis();
-    filled_arc(idx.iter().map(|&k| {
-        let (n, _) = cloud.local(k);
-        let radial = c.offset(&(cloud.point(k) + cloud.origin));
-        let n = if n.dot(&radial) < 0.0 { -n } else { n };
-        n.dot(&e2).atan2(n.dot(&e1))
-    }))
+    let (mut t0, mut t1) = (f64::INFINITY, f64::NEG_INFINITY);
+    let arc = filled_arc(inliers.iter().map(|&k| {
+        let p = cloud.point(k) + cloud.origin;
+        let t = (p - c.point).dot(&c.direction);
+        t0 = t0.min(t);
+        t1 = t1.max(t);
+        let off = c.offset(&p);
+        off.dot(&e2).atan2(off.dot(&e1))
+    }));
+    let area = arc.max(std::f64::consts::FRAC_PI_2) * c.radius * (t1 - t0).max(c.radius);
+    let density = inliers.len() as f64 / area.max(f64::MIN_POSITIVE);
+    let neighbourhood = (NORMAL_NEIGHBOURS as f64 / (std::f64::consts::PI * density)).sqrt();
+    let radius = PATCH_RADIUS_FRACTION * c.radius;
+    (radius, neighbourhood < radius)
+}
+
+/// The arc the normals of the points `pts` fill about `c`'s axis.
+pub(super) fn normal_arc(c: &Cylinder, pts: &[Oriented]) -> f64 {
+    let (e1, e2) = c.cross_section_basis();
+    filled_arc(
+        pts.iter()
+            .map(|o| o.normal.dot(&e2).atan2(o.normal.dot(&e1))),
+    )
 }
 
 /// How the normals turn with the points about `c`'s axis: per 10° bin of the points'
@@ -21,14 +273,13 @@ pub(super) fn normal_arc(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> f64 {
 /// over neighbouring bins of the normal's turn per turn of the points. 1 on a cylinder (the
 /// normal is the radial direction), near 0 on a box's faces (one normal per face), whatever
 /// the noise. `None` with fewer than three filled bins.
-pub(super) fn normal_turn(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> Option<f64> {
+pub(super) fn normal_turn(c: &Cylinder, pts: &[Oriented]) -> Option<f64> {
     const BINS: usize = 36;
     let (e1, e2) = c.cross_section_basis();
     let mut sums = [(0usize, 0.0f64, 0.0f64); BINS];
-    for &k in idx {
-        let (n, _) = cloud.local(k);
-        let radial = c.offset(&(cloud.point(k) + cloud.origin));
-        let n = if n.dot(&radial) < 0.0 { -n } else { n };
+    for o in pts {
+        let n = o.normal;
+        let radial = c.offset(&o.point);
         let a = radial.dot(&e2).atan2(radial.dot(&e1));
         let b =
             (((a / std::f64::consts::TAU).rem_euclid(1.0) * BINS as f64) as usize).min(BINS - 1);
@@ -92,15 +343,11 @@ pub(super) fn shape_departure(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> f64
     ((m2 - noise) / bins as f64).max(0.0).sqrt()
 }
 
-/// The median angle between the normals of the points `idx` and `c`'s radial direction (rad).
-pub(super) fn normal_deviation(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> f64 {
-    let mut angles: Vec<f64> = idx
+/// The median angle between the normals of the points `pts` and `c`'s radial direction (rad).
+pub(super) fn normal_deviation(c: &Cylinder, pts: &[Oriented]) -> f64 {
+    let mut angles: Vec<f64> = pts
         .iter()
-        .map(|&k| {
-            let (n, _) = cloud.local(k);
-            let radial = c.radial(&(cloud.point(k) + cloud.origin));
-            n.dot(&radial).abs().min(1.0).acos()
-        })
+        .map(|o| o.normal.dot(&c.radial(&o.point)).abs().min(1.0).acos())
         .collect();
     if angles.is_empty() {
         return std::f64::consts::FRAC_PI_2;
