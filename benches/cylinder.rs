@@ -75,7 +75,7 @@ fn cylinder(c: &mut Criterion) {
         "1M points, the main command's pipe of interest (network)",
         |b| {
             b.iter(|| {
-                measure_pipe(&pts, &Scaling::Given(1.0), None, &pipe_config)
+                measure_pipe(&pts, &Scaling::Given(1.0), None, &pipe_config, &[])
                     .unwrap()
                     .fit
                     .cylinder

@@ -13,8 +13,8 @@ use std::io::Write as _;
 
 use pipemeasure::io::atomic::{StagedFile, check_writable};
 use pipemeasure::io::ply::{PointCloud, stage_binary};
-use pipemeasure::measure::PipeMeasurement;
 use pipemeasure::measure::site::{ScaleTargetOut, SiteReport, SiteRequest, measure_site};
+use pipemeasure::measure::{ChosenBy, PipeMeasurement};
 
 use super::calibrate::RollingShutterMode;
 use super::fit_cylinder::{SearchArgs, read_points};
@@ -182,6 +182,67 @@ pub fn run(args: &Args, cloud: &Path, globals: Globals) -> Result<()> {
     Ok(())
 }
 
+/// Every pipe segment found, the pipe of interest marked, and how it was chosen.
+fn print_pipes(out: &SiteReport) -> Result<()> {
+    let c = &out.pipe_of_interest;
+    let how = match &c.by {
+        ChosenBy::Near => "nearest --near".to_string(),
+        ChosenBy::Frames { votes, frames } => {
+            format!("the frames ({votes} of {frames} optical axes meet it first)")
+        }
+        ChosenBy::MostInliers { reason } => format!("most inliers ({reason})"),
+    };
+    outln!(
+        "{} pipe segment{} found; pipe of interest * chosen by {how}{}",
+        out.pipes.len(),
+        if out.pipes.len() == 1 { "" } else { "s" },
+        if c.ambiguous {
+            format!(
+                "; AMBIGUOUS: segment{} {} as good a choice (give --near X,Y,Z)",
+                if c.alternatives.len() == 1 { "" } else { "s" },
+                c.alternatives
+                    .iter()
+                    .map(ToString::to_string)
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        } else {
+            String::new()
+        }
+    );
+    outln!(
+        "{:>4}  {:>6} {:>5}  {:>18}  {:>7}  {:>8}  {:>6}  {:>9}  {:>9}",
+        "id",
+        "NPS",
+        "DN",
+        "radius mm",
+        "len m",
+        "inliers",
+        "RMSE",
+        "TLS mm",
+        "accuracy"
+    );
+    for p in &out.pipes {
+        outln!(
+            "{:>3}{}  {:>6} {:>5}  {:>8.2} ± {:>7.2}  {:>7.3}  {:>8}  {:>6.2}  {:>9}  {:>9}",
+            p.id,
+            if p.of_interest { "*" } else { " " },
+            p.nominal.nps.unwrap_or("-"),
+            p.nominal.dn,
+            p.radius_m * 1e3,
+            p.radius_std_m * 1e3,
+            p.length_m,
+            p.inliers,
+            p.rmse_m * 1e3,
+            p.reference_radius_m
+                .map_or("-".to_string(), |r| format!("{:.2}", r * 1e3)),
+            p.accuracy_m
+                .map_or("-".to_string(), |a| format!("{:+.2}", a * 1e3)),
+        );
+    }
+    Ok(())
+}
+
 fn print_summary(out: &SiteReport, args: &Args) -> Result<()> {
     outln!(
         "pipe radius {:.2} ± {:.2} mm (fit ± {:.2} mm, {}), RMSE {:.2} mm, {} inliers",
@@ -267,6 +328,7 @@ fn print_summary(out: &SiteReport, args: &Args) -> Result<()> {
             a * 1e3
         );
     }
+    print_pipes(out)?;
     if let Some(p) = &args.json {
         outln!("report written to {}", p.display());
     }

@@ -304,7 +304,7 @@ pub fn run_site(
         let points: Vec<Vector3<f64>> = cloud.points.iter().map(|p| p.coords).collect();
         let associated = estimate.associated.len();
         let scaling = Scaling::Targets(estimate);
-        let m = measure_pipe(&points, &scaling, Some(&region), &config)
+        let m = measure_pipe(&points, &scaling, Some(&region), &config, &[])
             .map_err(|e| format!("{}: {e}", method.name()))?;
         let r = m.fit.cylinder.radius;
         let rms = (2.0 * summary.final_cost / (2.0 * summary.observations_used as f64)).sqrt();

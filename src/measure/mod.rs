@@ -2,8 +2,10 @@
 //! its points in Z-order with the implicit octree and uniform grids that order gives (`zorder`:
 //! the exact nearest neighbours of scattered points and of a band of points), robust cylinder
 //! fitting (`cylinder`), the site's targets (`targets`), the scale from them against the TLS
-//! (`scale`), and the pipe measured in metres with its reference (`pipe`).
+//! (`scale`), the pipe network (`network`), which pipe the user filmed (`choice`), and the
+//! pipes measured in metres with their reference (`pipe`).
 
+pub mod choice;
 pub mod cloud;
 pub mod cylinder;
 pub mod network;
@@ -15,6 +17,7 @@ pub mod site;
 pub mod targets;
 mod zorder;
 
+pub use choice::{Choice, ChosenBy, View, pipe_of_interest};
 pub use cloud::{Cloud, CloudError};
 pub use cylinder::{
     Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_all_cylinders, fit_cylinder,

@@ -6,6 +6,7 @@
 
 use nalgebra::Vector3;
 
+use super::choice::{Choice, View, pipe_of_interest};
 use super::cloud::Cloud;
 use super::cylinder::{Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_cylinder_among};
 use super::network::{Network, NetworkConfig, NetworkError, PipeSegment, extract_network};
@@ -97,6 +98,10 @@ pub struct PipeMeasurement {
     pub segment: PipeSegment,
     /// How many pipe segments the search found, the measured one included.
     pub segments_found: usize,
+    /// Every segment the search found (the measured one is `segments[choice.segment]`).
+    pub segments: Vec<PipeSegment>,
+    /// How the measured segment was chosen.
+    pub choice: Choice,
 }
 
 /// The reference radius from the TLS scan and the accuracy of the measurement.
@@ -123,7 +128,9 @@ pub fn transformed_points(
         .collect()
 }
 
-/// Scales (and moves) the cloud, then measures the pipe of interest ([`pipe_of_interest`]).
+/// Scales (and moves) the cloud, then finds every pipe segment and measures the pipe of
+/// interest ([`pipe_of_interest`]; `views` are the frames' optical axes in the measured
+/// frame, empty when there are none).
 ///
 /// # Errors
 ///
@@ -133,6 +140,7 @@ pub fn measure_pipe(
     scaling: &Scaling,
     region: Option<&Region>,
     config: &CylinderConfig,
+    views: &[View],
 ) -> Result<PipeMeasurement, CylinderError> {
     let transform = scaling.transform();
     let points = transformed_points(points, &transform, region);
@@ -141,9 +149,9 @@ pub fn measure_pipe(
             NetworkError::Cloud(e) => CylinderError::Cloud(e),
             NetworkError::Config(e) => e,
         })?;
-    let segment = pipe_of_interest(&network, region, config.axis_hint)
-        .ok_or_else(|| no_pipe(&network))?
-        .clone();
+    let choice = pipe_of_interest(&network.segments, region, config.axis_hint, views)
+        .ok_or_else(|| no_pipe(&network))?;
+    let segment = network.segments[choice.segment].clone();
     let fit = segment_fit(&segment);
     let scale = scaling.scale();
     let r = fit.cylinder.radius;
@@ -156,6 +164,8 @@ pub fn measure_pipe(
         points,
         segments_found: network.segments.len(),
         segment,
+        segments: network.segments,
+        choice,
     })
 }
 
@@ -172,39 +182,6 @@ pub fn network_config(region: Option<&Region>, config: &CylinderConfig) -> Netwo
         }),
         ..defaults
     }
-}
-
-/// The pipe of interest among the network's segments: those within the axis hint's angle (when
-/// given); of them the one whose axis passes nearest the region's centre (`--near`), otherwise
-/// the one with the most inliers (the best-supported pipe, what a single robust fit finds).
-/// Ties keep the first segment. `None` when no segment qualifies.
-#[must_use]
-pub fn pipe_of_interest<'a>(
-    network: &'a Network,
-    region: Option<&Region>,
-    axis_hint: Option<(Vector3<f64>, f64)>,
-) -> Option<&'a PipeSegment> {
-    let along_hint = |g: &&PipeSegment| {
-        axis_hint.is_none_or(|(hint, angle)| {
-            let (_, d, _) = g.axis();
-            d.dot(&hint).abs() >= angle.cos() - 1e-12
-        })
-    };
-    let candidates = network.segments.iter().filter(along_hint);
-    match region {
-        Some(r) => candidates
-            .min_by(|a, b| axis_distance(a, &r.centre).total_cmp(&axis_distance(b, &r.centre))),
-        // `max_by_key` keeps the last of equals: reversed, the first.
-        None => candidates.rev().max_by_key(|g| g.inliers),
-    }
-}
-
-/// Distance from `p` to the segment's axis between its endpoints.
-#[must_use]
-pub fn axis_distance(segment: &PipeSegment, p: &Vector3<f64>) -> f64 {
-    let (a, d, l) = segment.axis();
-    let t = (p - a).dot(&d).clamp(0.0, l);
-    (p - (a + t * d)).norm()
 }
 
 /// The segment as a cylinder fit: its axis through its start, its radius, σ, RMSE and inliers
@@ -262,6 +239,17 @@ pub fn reference_fit(
     same_frame: bool,
     config: &CylinderConfig,
 ) -> Result<Reference, CylinderError> {
+    reference_fit_among(scan, measured, &measured.points, same_frame, config)
+}
+
+/// [`reference_fit`] with the measured points the fit's inliers index given apart.
+fn reference_fit_among(
+    scan: &[Vector3<f64>],
+    measured: &PipeMeasurement,
+    measured_points: &[Vector3<f64>],
+    same_frame: bool,
+    config: &CylinderConfig,
+) -> Result<Reference, CylinderError> {
     let c = &measured.fit.cylinder;
     let r = c.radius;
     let mut config = CylinderConfig {
@@ -277,7 +265,7 @@ pub fn reference_fit(
             .fit
             .inlier_indices
             .iter()
-            .map(|&i| measured.points[i])
+            .map(|&i| measured_points[i])
             .sum::<Vector3<f64>>()
             / n;
         let on_axis = c.point + (mean - c.point).dot(&c.direction) * c.direction;
@@ -294,6 +282,41 @@ pub fn reference_fit(
         accuracy: r - fit.cylinder.radius,
         fit,
     })
+}
+
+/// Fits a segment of the measured cloud in the TLS scan, the scan in the same frame: near its
+/// axis (within three radii plus 0.2 m of its inliers' middle, axis within 10°), radius within
+/// 25 %. `points` are the measured points its inliers index.
+///
+/// # Errors
+///
+/// As [`measure_pipe`].
+pub fn segment_reference(
+    scan: &[Vector3<f64>],
+    segment: &PipeSegment,
+    points: &[Vector3<f64>],
+    config: &CylinderConfig,
+) -> Result<Reference, CylinderError> {
+    let fit = segment_fit(segment);
+    let measured = PipeMeasurement {
+        fit,
+        scale: (1.0, 0.0),
+        radius_std: segment.radius_std_m,
+        transform: Similarity::identity(),
+        points: Vec::new(),
+        segment: segment.clone(),
+        segments_found: 0,
+        segments: Vec::new(),
+        choice: Choice {
+            segment: 0,
+            by: super::choice::ChosenBy::Near,
+            distance_m: None,
+            runner_up: None,
+            ambiguous: false,
+            alternatives: Vec::new(),
+        },
+    };
+    reference_fit_among(scan, &measured, points, true, config)
 }
 
 #[cfg(test)]
@@ -341,7 +364,7 @@ mod tests {
             axis_hint: hint.map(|h| (h, 20f64.to_radians())),
             ..NetworkConfig::default().cylinder
         };
-        measure_pipe(&room(), &Scaling::Given(1.0), region.as_ref(), &config).unwrap()
+        measure_pipe(&room(), &Scaling::Given(1.0), region.as_ref(), &config, &[]).unwrap()
     }
 
     /// The pipe of interest (issue 20, the main command on the network engine): near a point,
@@ -385,7 +408,7 @@ mod tests {
             axis_hint: Some((Vector3::y(), 20f64.to_radians())),
             ..NetworkConfig::default().cylinder
         };
-        let err = match measure_pipe(&room(), &Scaling::Given(1.0), None, &config) {
+        let err = match measure_pipe(&room(), &Scaling::Given(1.0), None, &config, &[]) {
             Ok(m) => panic!("a pipe along y: {}", show(&m.segment)),
             Err(e) => e,
         };

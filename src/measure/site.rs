@@ -16,8 +16,11 @@ use nalgebra::{DMatrix, Point3, Vector2, Vector3, Vector6};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::choice::{ChosenBy, View};
 use super::cylinder::{CylinderConfig, CylinderError};
-use super::pipe::{PipeMeasurement, Reference, Region, Scaling, measure_pipe, reference_fit};
+use super::pipe::{
+    PipeMeasurement, Reference, Region, Scaling, measure_pipe, reference_fit, segment_reference,
+};
 use super::scale::ReconstructedTarget;
 use super::scale::{ScaleConfig, ScaleError, ScaleEstimate, estimate_scale};
 use super::targets::{SiteTargets, match_site_targets};
@@ -845,16 +848,22 @@ pub fn measure_site(
         points,
         cloud_source,
     } = scaled_cloud(request, points, log, progress)?;
+    let views = targets
+        .as_ref()
+        .map(|t| views_of(t, &scaling.transform()))
+        .unwrap_or_default();
     let mut pipe = measure_pipe(
         &points.points,
         &scaling,
         request.region.as_ref(),
         &request.cylinder,
+        &views,
     )
     .map_err(|source| SiteError::Fit {
         path: request.cloud.clone(),
         source,
     })?;
+    log(&choice_message(&pipe));
     // What the poses' uncertainty does to the radius (the targets and the cloud move with them).
     let pose_radius_std_m = match (&targets, cloud_source) {
         (Some(t), CloudSource::Retriangulated) => {
@@ -881,6 +890,30 @@ pub fn measure_site(
         ),
         _ => None,
     };
+    // Every other segment's reference where the scan is in the measured frame (with only a
+    // scale, nothing but the radius says which scan cylinder is which pipe).
+    let references: Vec<Option<Reference>> = match (scan, scaling.in_tls_frame()) {
+        (Some(scan), true) => pipe
+            .segments
+            .par_iter()
+            .enumerate()
+            .map(|(k, g)| {
+                if k == pipe.choice.segment {
+                    return reference.clone();
+                }
+                segment_reference(scan, g, &pipe.points, &request.cylinder).ok()
+            })
+            .collect(),
+        _ => (0..pipe.segments.len())
+            .map(|k| {
+                if k == pipe.choice.segment {
+                    reference.clone()
+                } else {
+                    None
+                }
+            })
+            .collect(),
+    };
     let mut report = report(
         &request.cloud,
         &pipe,
@@ -889,7 +922,16 @@ pub fn measure_site(
         reference.as_ref(),
         cloud_source,
     );
+    report.pipes = pipe_reports(&pipe, &references);
     report.pose_radius_std_m = pose_radius_std_m;
+    if let Some(p) = report
+        .pipes
+        .iter_mut()
+        .find(|p| p.id == pipe.segments[pipe.choice.segment].id)
+    {
+        p.radius_std_m = pipe.radius_std;
+        p.pose_radius_std_m = pose_radius_std_m;
+    }
     Ok(SiteMeasurement {
         pipe,
         scaling,
@@ -972,6 +1014,10 @@ pub struct SiteReport {
     pub nominal: super::NominalSize,
     /// Pipe segments the search found, the measured one included.
     pub segments_found: usize,
+    /// How the measured segment (the pipe of interest) was chosen.
+    pub pipe_of_interest: ChoiceOut,
+    /// Every pipe segment found, the pipe of interest among them.
+    pub pipes: Vec<PipeOut>,
     /// `tls` when the cloud was moved into the TLS frame by the targets' similarity, `scaled`
     /// when only scaled.
     pub frame: &'static str,
@@ -1005,6 +1051,165 @@ pub struct SiteReport {
     pub reference_inliers: Option<usize>,
     /// Radius minus the reference radius (m).
     pub accuracy_m: Option<f64>,
+}
+
+/// How the pipe of interest was chosen, in the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct ChoiceOut {
+    /// The chosen segment's id (its entry in `pipes`).
+    pub segment: usize,
+    /// `near`, `frames` (with the votes) or `most-inliers` (with the reason).
+    #[serde(flatten)]
+    pub by: ChosenBy,
+    /// Distance from the `--near` point to its axis (m).
+    pub distance_m: Option<f64>,
+    /// The next candidate's id and its distance from the `--near` point (m), its votes or its
+    /// inliers.
+    pub runner_up: Option<(usize, f64)>,
+    /// Whether other segments are as good a choice.
+    pub ambiguous: bool,
+    /// Those segments' ids.
+    pub alternatives: Vec<usize>,
+}
+
+/// One pipe segment of the measured cloud, in the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct PipeOut {
+    /// Its id.
+    pub id: usize,
+    /// Whether it is the pipe of interest.
+    pub of_interest: bool,
+    /// Radius (m).
+    pub radius_m: f64,
+    /// σ: the fit's and the scale's (and for the pipe of interest the poses').
+    pub radius_std_m: f64,
+    /// The poses' part of it, when computed (the pipe of interest).
+    pub pose_radius_std_m: Option<f64>,
+    /// The closest standard size.
+    pub nominal: super::NominalSize,
+    /// Axis start (m, measured frame).
+    pub start: [f64; 3],
+    /// Axis end.
+    pub end: [f64; 3],
+    /// Length (m).
+    pub length_m: f64,
+    /// Inliers.
+    pub inliers: usize,
+    /// RMS of the inliers' residuals (m).
+    pub rmse_m: f64,
+    /// Arc of the circumference its inliers fill (degrees).
+    pub coverage_deg: f64,
+    /// The TLS scan's fit of the same pipe (m), when the scan was given and is in the same
+    /// frame.
+    pub reference_radius_m: Option<f64>,
+    /// Radius minus the reference radius (m).
+    pub accuracy_m: Option<f64>,
+}
+
+/// The report's entry for every segment of `m`, with its reference when there is one.
+fn pipe_reports(m: &PipeMeasurement, references: &[Option<Reference>]) -> Vec<PipeOut> {
+    let (s, s_std) = m.scale;
+    m.segments
+        .iter()
+        .enumerate()
+        .map(|(k, g)| {
+            let r = g.radius_m;
+            let reference = references.get(k).and_then(Option::as_ref);
+            PipeOut {
+                id: g.id,
+                of_interest: k == m.choice.segment,
+                radius_m: r,
+                radius_std_m: g.radius_std_m.hypot(r * s_std / s),
+                pose_radius_std_m: None,
+                nominal: g.nominal.clone(),
+                start: g.start,
+                end: g.end,
+                length_m: g.length_m,
+                inliers: g.inliers,
+                rmse_m: g.rmse_m,
+                coverage_deg: g.coverage_deg,
+                reference_radius_m: reference.map(|x| x.fit.cylinder.radius),
+                accuracy_m: reference.map(|x| r - x.fit.cylinder.radius),
+            }
+        })
+        .collect()
+}
+
+/// The choice in the report: indices turned into segment ids.
+fn choice_out(m: &PipeMeasurement) -> ChoiceOut {
+    let c = &m.choice;
+    let id = |k: usize| m.segments[k].id;
+    ChoiceOut {
+        segment: id(c.segment),
+        by: c.by.clone(),
+        distance_m: c.distance_m,
+        runner_up: c.runner_up.map(|(k, d)| (id(k), d)),
+        ambiguous: c.ambiguous,
+        alternatives: c.alternatives.iter().map(|&k| id(k)).collect(),
+    }
+}
+
+/// What the log says of the choice of the pipe of interest.
+#[must_use]
+pub fn choice_message(m: &PipeMeasurement) -> String {
+    let c = &m.choice;
+    let seg = |k: usize| {
+        let g = &m.segments[k];
+        format!("segment {} (r {:.2} mm)", g.id, g.radius_m * 1e3)
+    };
+    let how = match &c.by {
+        ChosenBy::Near => format!(
+            "the one whose axis passes nearest --near ({:.0} mm)",
+            c.distance_m.unwrap_or(f64::NAN) * 1e3
+        ),
+        ChosenBy::Frames { votes, frames } => {
+            format!("the one the optical axes of {votes} of the {frames} frames meet first")
+        }
+        ChosenBy::MostInliers { reason } => {
+            format!("the best-supported one (most inliers): {reason}")
+        }
+    };
+    let next = match (c.ambiguous, c.runner_up, &c.by) {
+        (true, _, _) => format!(
+            "; ambiguous: {} as good a choice; give --near X,Y,Z to choose",
+            c.alternatives
+                .iter()
+                .map(|&k| seg(k))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+        (false, Some((k, d)), ChosenBy::Near) => {
+            format!("; next: {} at {:.0} mm", seg(k), d * 1e3)
+        }
+        (false, Some((k, v)), ChosenBy::Frames { .. }) => {
+            format!("; next: {} with {v} frames", seg(k))
+        }
+        _ => String::new(),
+    };
+    format!(
+        "pipe of interest: {} of {} found, {how}{next}",
+        seg(c.segment),
+        m.segments.len()
+    )
+}
+
+/// The frames' optical axes in the measured frame: the re-adjusted poses' camera centres and
+/// +Z axes, through the cloud's transform.
+fn views_of(t: &SiteScale, transform: &crate::adjust::Similarity) -> Vec<View> {
+    t.poses
+        .a1
+        .frames
+        .iter()
+        .map(|f| {
+            let pose = &f.camera.cam_from_world;
+            let centre = crate::geometry::pose::camera_centre(pose);
+            let axis = pose.rotation.inverse() * Vector3::z();
+            View {
+                centre: transform.apply(&centre.coords),
+                direction: (transform.rotation * axis).normalize(),
+            }
+        })
+        .collect()
 }
 
 fn report(
@@ -1064,6 +1269,8 @@ fn report(
         length_m: m.segment.length_m,
         nominal: m.segment.nominal.clone(),
         segments_found: m.segments_found,
+        pipe_of_interest: choice_out(m),
+        pipes: Vec::new(),
         frame: if scaling.in_tls_frame() {
             "tls"
         } else {
