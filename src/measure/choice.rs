@@ -285,17 +285,18 @@ mod tests {
     }
 
     /// Cameras on an arc of ±55° about a vertical through `target`, `distance` away and 0.15 m
-    /// higher, each aimed at a point of the pipe along x that slides with the camera (0.25 m
-    /// × sin of its angle, as the simulator's site path aims) with `jitter` (m) of aim error
-    /// alternating up and down.
-    fn arc(target: Vector3<f64>, n: usize, distance: f64, jitter: f64) -> Vec<View> {
+    /// higher, each aimed at a point of the pipe along x that slides with the camera (`slide`
+    /// × sin of its angle; the simulator's site path slides 0.25 m) with `jitter` (m) of aim
+    /// error alternating up and down.
+    fn arc(target: Vector3<f64>, n: usize, slide: f64, jitter: f64) -> Vec<View> {
+        let distance = 1.6;
         (0..n)
             .map(|k| {
                 let theta = (-55.0 + 110.0 * k as f64 / (n - 1) as f64).to_radians();
                 let centre =
                     target + Vector3::new(distance * theta.sin(), distance * theta.cos(), 0.15);
                 let up = if k % 2 == 0 { jitter } else { -jitter };
-                let aim = target + Vector3::new(0.25 * theta.sin(), 0.0, up);
+                let aim = target + Vector3::new(slide * theta.sin(), 0.0, up);
                 View {
                     centre,
                     direction: (aim - centre).normalize(),
@@ -308,8 +309,8 @@ mod tests {
     /// (r 84 mm, more inliers) 0.14 m further back and 4 cm lower. Frames circling the 2-inch
     /// one at 1.6 m with 4 cm of aim error choose it, every frame's axis meeting it first (the
     /// axes converge 15–20 cm behind it, on the 6-inch one: not the test); with no frames the
-    /// 6-inch (most inliers); frames circling the 6-inch choose it; a row of frames looking at
-    /// the wall above both meets neither.
+    /// 6-inch (most inliers); frames circling the 6-inch where the 2-inch does not hide it
+    /// choose it; a row of frames looking at the wall above both meets neither.
     #[test]
     fn the_frames_choose_the_pipe_at_their_centre() {
         let segments = vec![
@@ -317,7 +318,7 @@ mod tests {
             segment([-0.53, 0.52, 1.3], [0.63, 0.52, 1.3], 0.030, 53_000),
         ];
         let front = Vector3::new(0.05, 0.52, 1.3);
-        let choice = pipe_of_interest(&segments, None, None, &arc(front, 20, 1.6, 0.04)).unwrap();
+        let choice = pipe_of_interest(&segments, None, None, &arc(front, 20, 0.25, 0.04)).unwrap();
         assert_eq!(choice.segment, 1, "{choice:?}");
         assert_eq!(
             choice.by,
@@ -332,8 +333,8 @@ mod tests {
         assert_eq!(none.segment, 0);
         assert!(matches!(none.by, ChosenBy::MostInliers { .. }));
 
-        let back = Vector3::new(-0.1, 0.38, 1.26);
-        let choice = pipe_of_interest(&segments, None, None, &arc(back, 20, 1.6, 0.04)).unwrap();
+        let back = Vector3::new(-0.8, 0.38, 1.26);
+        let choice = pipe_of_interest(&segments, None, None, &arc(back, 20, 0.05, 0.04)).unwrap();
         assert_eq!(choice.segment, 0, "{choice:?}");
 
         let above: Vec<View> = (0..20)
@@ -346,21 +347,21 @@ mod tests {
         assert!(matches!(walk.by, ChosenBy::MostInliers { .. }), "{walk:?}");
     }
 
-    /// A tee: the frames aim at the junction, where the branch (r 30 mm, from below) meets the
-    /// run (r 57 mm) at its surface. Half of them meet the run first and half the branch:
-    /// ambiguous, both named. `--near` the junction: the run, with the branch as good.
+    /// A tee: half the frames aim at the junction, where the branch (r 30 mm, from below) meets
+    /// the run (r 57 mm) at its surface, and meet the run first; half aim 25 cm down the branch
+    /// and meet it: ambiguous, both named. `--near` the junction: the run, with the branch as
+    /// good.
     #[test]
     fn a_tee_filmed_at_its_junction_is_ambiguous() {
         let segments = vec![
             segment([-1.0, 0.5, 1.3], [1.0, 0.5, 1.3], 0.057, 90_000),
             segment([0.0, 0.5, 0.0], [0.0, 0.5, 1.243], 0.030, 40_000),
         ];
-        // Every other frame aimed 8 cm below the junction, at the branch.
-        let views: Vec<View> = arc(Vector3::new(0.0, 0.5, 1.3), 20, 1.6, 0.0)
+        let views: Vec<View> = arc(Vector3::new(0.0, 0.5, 1.3), 20, 0.0, 0.0)
             .into_iter()
             .enumerate()
             .map(|(k, v)| {
-                let aim = Vector3::new(0.0, 0.5, if k % 2 == 0 { 1.3 } else { 1.18 });
+                let aim = Vector3::new(0.0, 0.5, if k % 2 == 0 { 1.3 } else { 1.05 });
                 View {
                     direction: (aim - v.centre).normalize(),
                     ..v

@@ -13,25 +13,26 @@ pub(super) fn components(
     remaining: &[usize],
     config: &NetworkConfig,
 ) -> Vec<Vec<usize>> {
-    use std::collections::HashMap;
-    let cell = |p: Vector3<f64>| {
-        (
-            (p.x / config.cell_m).floor() as i64,
-            (p.y / config.cell_m).floor() as i64,
-            (p.z / config.cell_m).floor() as i64,
-        )
-    };
-    let mut cells: HashMap<(i64, i64, i64), usize> = HashMap::new();
-    let mut members: Vec<Vec<usize>> = Vec::new();
-    for &pos in remaining {
-        let c = cell(cloud.point_at(pos));
-        let id = *cells.entry(c).or_insert_with(|| {
-            members.push(Vec::new());
-            members.len() - 1
-        });
-        members[id].push(pos);
-    }
-    let mut parent: Vec<usize> = (0..members.len()).collect();
+    use rayon::prelude::*;
+    // Each point's cell, then the points sorted by cell: a cell is a run of the sorted list.
+    let mut keyed: Vec<([i64; 3], usize)> = remaining
+        .par_iter()
+        .map(|&pos| {
+            let p: Vector3<f64> = cloud.point_at(pos) / config.cell_m;
+            (
+                [p.x.floor() as i64, p.y.floor() as i64, p.z.floor() as i64],
+                pos,
+            )
+        })
+        .collect();
+    keyed.par_sort_unstable();
+    let runs: Vec<&[([i64; 3], usize)]> = keyed.chunk_by(|a, b| a.0 == b.0).collect();
+    let index: CellMap<usize> = runs
+        .iter()
+        .enumerate()
+        .map(|(id, run)| (run[0].0, id))
+        .collect();
+    let mut parent: Vec<usize> = (0..runs.len()).collect();
     fn find(parent: &mut [usize], mut a: usize) -> usize {
         while parent[a] != a {
             parent[a] = parent[parent[a]];
@@ -39,12 +40,12 @@ pub(super) fn components(
         }
         a
     }
-    let keys: Vec<((i64, i64, i64), usize)> = cells.iter().map(|(k, v)| (*k, *v)).collect();
-    for ((x, y, z), id) in keys {
+    for (id, run) in runs.iter().enumerate() {
+        let [x, y, z] = run[0].0;
         for dx in -1..=1 {
             for dy in -1..=1 {
                 for dz in -1..=1 {
-                    if let Some(&other) = cells.get(&(x + dx, y + dy, z + dz)) {
+                    if let Some(&other) = index.get(&[x + dx, y + dy, z + dz]) {
                         let (a, b) = (find(&mut parent, id), find(&mut parent, other));
                         if a != b {
                             parent[a.max(b)] = a.min(b);
@@ -54,10 +55,13 @@ pub(super) fn components(
             }
         }
     }
-    let mut groups: HashMap<usize, Vec<usize>> = HashMap::new();
-    for (id, m) in members.into_iter().enumerate() {
+    let mut groups: std::collections::BTreeMap<usize, Vec<usize>> = Default::default();
+    for (id, run) in runs.iter().enumerate() {
         let root = find(&mut parent, id);
-        groups.entry(root).or_default().extend(m);
+        groups
+            .entry(root)
+            .or_default()
+            .extend(run.iter().map(|&(_, pos)| pos));
     }
     let mut out: Vec<Vec<usize>> = groups
         .into_values()
@@ -70,4 +74,41 @@ pub(super) fn components(
     // Largest first, ties by the first position: independent of the hash order.
     out.sort_by(|a, b| b.len().cmp(&a.len()).then(a[0].cmp(&b[0])));
     out
+}
+
+/// A hash map keyed by grid cells, hashed by a multiply–rotate of the three coordinates
+/// (as rustc's FxHash): the default SipHash was most of the components' time on a million
+/// points, and cell keys need no protection against adversarial collisions.
+pub(super) type CellMap<V> =
+    std::collections::HashMap<[i64; 3], V, std::hash::BuildHasherDefault<CellHasher>>;
+
+/// The hasher of [`CellMap`].
+#[derive(Default)]
+pub(super) struct CellHasher(u64);
+
+impl std::hash::Hasher for CellHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for chunk in bytes.chunks(8) {
+            let mut word = [0u8; 8];
+            word[..chunk.len()].copy_from_slice(chunk);
+            self.write_u64(u64::from_le_bytes(word));
+        }
+    }
+
+    fn write_u64(&mut self, v: u64) {
+        const K: u64 = 0x51_7c_c1_b7_27_22_0a_95;
+        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(K);
+    }
+
+    fn write_i64(&mut self, v: i64) {
+        self.write_u64(v as u64);
+    }
+
+    fn write_usize(&mut self, v: usize) {
+        self.write_u64(v as u64);
+    }
 }

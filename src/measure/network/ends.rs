@@ -45,24 +45,34 @@ pub(super) fn end_of(
     let cut = (raw - at).dot(&d).clamp(0.0, tail);
     let local_at = at - cloud.origin;
     let axis_point = c.point - cloud.origin;
-    let pts: Vec<EndPoint> = (0..cloud.len())
+    // The points near the end first, their normals then computed together (a batch through
+    // the cloud's grid, not a query each).
+    let near: Vec<usize> = (0..cloud.len())
         .into_par_iter()
         .with_min_len(4096)
-        .filter_map(|pos| {
+        .filter(|&pos| {
             let q = cloud.point_at(pos);
             let t = (q - local_at).dot(&d);
             if !(-tail..=0.1 + cut).contains(&t) {
-                return None;
+                return false;
             }
+            let w = q - axis_point;
+            let rho = (w - c.direction * w.dot(&c.direction)).norm();
+            rho <= c.radius + 0.1 && rho >= 0.5 * c.radius
+        })
+        .collect();
+    cloud.prepare_at(&near);
+    let pts: Vec<EndPoint> = near
+        .par_iter()
+        .map(|&pos| {
+            let q = cloud.point_at(pos);
+            let t = (q - local_at).dot(&d);
             let w = q - axis_point;
             let off = w - c.direction * w.dot(&c.direction);
             let rho = off.norm();
-            if rho > c.radius + 0.1 || rho < 0.5 * c.radius {
-                return None;
-            }
             let (n, _) = cloud.local_at(pos);
             let u = off / rho.max(f64::MIN_POSITIVE);
-            Some((t, rho - c.radius, [u.dot(&e1), u.dot(&e2)], n.dot(&d).abs()))
+            (t, rho - c.radius, [u.dot(&e1), u.dot(&e2)], n.dot(&d).abs())
         })
         .collect();
     if let Some(t) = end_face(&pts, 0.08) {
@@ -177,6 +187,14 @@ fn flange_front(pts: &[EndPoint], face: f64) -> Option<f64> {
     (upper_median(&mut e) >= 0.01).then(|| rim_front(&rim))
 }
 
+/// How far beyond the end an elbow's surface is looked for before its tangent is sought (m):
+/// within 5 cm past its tangent the surface of a long-radius 2-inch elbow leaves the straight
+/// one by 16 mm at most, so nearly all of it lies in the 15 mm band.
+const ELBOW_CONTINUATION_M: f64 = 0.05;
+/// Fewest surface points beyond the end, as a fraction of those in as long a stretch before
+/// it, for an elbow to be sought.
+const ELBOW_CONTINUATION_FRACTION: f64 = 0.1;
+
 /// Bend radii tried for an elbow, in units of the pipe's outside radius: short-radius
 /// elbows (ASME B16.9: R = 1.0 × the nominal size, 1.7–2 r), long-radius ones (1.5 ×, 2.5–3 r)
 /// and 3D–5D bends (6–10 r).
@@ -213,6 +231,17 @@ pub(super) fn elbow_tangent(pts: &[EndPoint], radius: f64, tail: f64) -> Option<
         .map(|p| p[1] * p[1])
         .collect();
     if straight.len() < 20 || surface.len() < 40 {
+        return None;
+    }
+    // An elbow's surface runs on beyond the end, within centimetres of the straight one;
+    // where (nearly) nothing does, the pipe ends there and no bend is sought (the grid below
+    // is most of the time the ends take).
+    let count = |from: f64, to: f64| surface.iter().filter(|p| p[0] > from && p[0] <= to).count();
+    let (before, beyond) = (
+        count(-ELBOW_CONTINUATION_M, 0.0),
+        count(0.0, ELBOW_CONTINUATION_M),
+    );
+    if (beyond as f64) < ELBOW_CONTINUATION_FRACTION * before as f64 {
         return None;
     }
     let sigma2 = upper_median(&mut straight) / 0.455;

@@ -5,7 +5,7 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::super::cloud::Cloud;
-use super::super::cylinder::{Cylinder, refit_among};
+use super::super::cylinder::{Cylinder, refit_warm};
 use super::NetworkConfig;
 use super::shape::{
     Flanks, Patches, SHAPE_SAMPLE, normal_arc, normal_deviation, normal_turn, shape_departure,
@@ -64,7 +64,9 @@ pub(super) fn pieces_of(
         }
         let mut idx: Vec<usize> = run.iter().map(|r| r.1).collect();
         idx.sort_unstable();
-        let piece = match refit_straight(cloud, &idx, cyl, config) {
+        // Warm from the candidate's fit: a run that is (nearly) all its inliers settles at once.
+        let rf = refit_straight(cloud, &idx, cyl, inliers, config);
+        let piece = match rf {
             Some((fit, coverage, raw)) => {
                 let c = fit.cylinder;
                 let (lo, hi) = fit
@@ -209,35 +211,61 @@ pub(super) fn refit_straight(
     cloud: &Cloud,
     idx: &[usize],
     cyl: &Cylinder,
+    warm: &[usize],
     config: &NetworkConfig,
 ) -> Option<(super::super::cylinder::CylinderFit, f64, [Vector3<f64>; 2])> {
-    let (fit, coverage) = refit_among(cloud, idx, cyl, &config.cylinder)?;
+    let (fit, coverage) = refit_warm(cloud, idx, cyl, warm, &config.cylinder)?;
     let c = fit.cylinder;
     let along = |k: usize| (cloud.point(k) + cloud.origin - c.point).dot(&c.direction);
     let (r0, r1) = fit
         .inlier_indices
-        .iter()
+        .par_iter()
         .map(|&k| along(k))
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
-            (a.min(t), b.max(t))
-        });
+        .fold(
+            || (f64::INFINITY, f64::NEG_INFINITY),
+            |(a, b), t| (a.min(t), b.max(t)),
+        )
+        .reduce(
+            || (f64::INFINITY, f64::NEG_INFINITY),
+            |x, y| (x.0.min(y.0), x.1.max(y.1)),
+        );
     let raw = [c.point + c.direction * r0, c.point + c.direction * r1];
     let Some((lo, hi)) = straight_span(cloud, &c, &fit.inlier_indices) else {
         return Some((fit, coverage, raw));
     };
     let kept: Vec<usize> = idx
-        .iter()
+        .par_iter()
         .copied()
         .filter(|&k| (lo..=hi).contains(&along(k)))
         .collect();
-    if kept.len() == fit.inlier_indices.len() || kept.len() < config.cylinder.min_inliers {
+    // Where the straight span drops (nearly) none of the inliers, the fit stands.
+    let dropped = fit
+        .inlier_indices
+        .par_iter()
+        .filter(|&&k| !(lo..=hi).contains(&along(k)))
+        .count();
+    if kept.len() == fit.inlier_indices.len()
+        || kept.len() < config.cylinder.min_inliers
+        || (dropped as f64) <= NEGLIGIBLE_BENT_FRACTION * fit.inlier_indices.len() as f64
+    {
         return Some((fit, coverage, raw));
     }
-    match refit_among(cloud, &kept, &c, &config.cylinder) {
+    let still: Vec<usize> = fit
+        .inlier_indices
+        .par_iter()
+        .copied()
+        .filter(|&k| (lo..=hi).contains(&along(k)))
+        .collect();
+    match refit_warm(cloud, &kept, &c, &still, &config.cylinder) {
         Some((f, cov)) => Some((f, cov, raw)),
         None => Some((fit, coverage, raw)),
     }
 }
+
+/// A fraction of the inliers beyond the straight span so small that re-fitting without them
+/// changes nothing measurable (a few centimetres of an elbow's band on a pipe metres long
+/// would be more): the fit is kept as it is.
+const NEGLIGIBLE_BENT_FRACTION: f64 = 0.005;
 
 /// The span along `c`'s axis (relative to `c.point`) where the inliers `idx` are straight:
 /// slabs of max(1.5 cm, r/5) along the axis, in each the shift of the cross-section's centre
@@ -248,7 +276,7 @@ pub(super) fn straight_span(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> Optio
     let (e1, e2) = c.cross_section_basis();
     let w = (0.2 * c.radius).max(0.015);
     let rows: Vec<(f64, f64, f64, f64)> = idx
-        .iter()
+        .par_iter()
         .map(|&k| {
             let p = cloud.point(k) + cloud.origin;
             let off = c.offset(&p);

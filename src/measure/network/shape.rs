@@ -61,7 +61,7 @@ pub(super) struct Patches {
 /// A surface the sensor sampled has its points in the band and its noise's tail beside it; a
 /// candidate that is the flank of another surface — the noise or the outliers just off a
 /// denser pipe, fitted as a wider or narrower cylinder — has more points on one side of its
-/// band than in it.
+/// band than in it, and flat faces tangent to it (a column's edge) go on beyond its band.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub(super) struct Flanks {
     /// Half-width of the band (m).
