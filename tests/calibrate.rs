@@ -41,6 +41,7 @@ fn check_selection(device: &str, width: u32, frames: usize, noise: f64, true_ter
             height_px: f64::from(width) * 9.0 / 16.0,
             readout_s: 0.025,
             estimate_readout: false,
+            timed: false,
         }),
         ..SelectionConfig::default()
     };
@@ -293,6 +294,7 @@ fn the_fourth_order_motion_is_kept_only_where_the_path_needs_it() {
                 height_px: f64::from(height),
                 readout_s: 0.025,
                 estimate_readout: false,
+                timed: true,
             }),
             ..SelectionConfig::default()
         };

@@ -124,3 +124,95 @@ fn a_rolling_shutter_video_calibrates_to_the_true_camera_and_readout_time() {
         gs.camera_max_px
     );
 }
+
+/// Frames from a rolling-shutter video without their neighbours (what `ffmpeg -vf fps=1`
+/// gives): a simulated p30 lab of 30 frames at 1920 px, readout 20 ms, 6 °/s at every frame.
+/// With no option, the selection tries a motion per frame with the readout time held at the
+/// nominal value (only readout × rate shows in one frame) and keeps it; the camera comes within
+/// 0.6 px of the truth and within 3 σ of what the profile reports, and the profile carries no
+/// readout time, since none was determined.
+#[test]
+fn video_frames_without_neighbours_calibrate_with_a_nominal_readout() {
+    let dir = tempfile::tempdir().unwrap();
+    let lab = dir.path().join("lab");
+    let (code, _, err) = pipemeasure(
+        dir.path(),
+        &[
+            "simulate",
+            "lab",
+            "--like",
+            "p30",
+            "--width",
+            "1920",
+            "--frames",
+            "30",
+            "--video",
+            "--readout",
+            "20",
+            "--angular-speed",
+            "6,6",
+            "--out",
+            lab.to_str().unwrap(),
+            "--quiet",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{err}");
+    let truth = Truth::read(&lab.join("truth.json")).unwrap();
+    let out = dir.path().join("rs.json");
+    let (code, _, log) = pipemeasure(
+        dir.path(),
+        &[
+            "calibrate",
+            "--device",
+            "rs",
+            "--frames",
+            lab.join("frames").to_str().unwrap(),
+            "--sfm",
+            lab.join("sparse").to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{log}");
+    let profile = Profile::read(&out).unwrap();
+    let (max_px, ratio) = against_truth(&profile, &truth);
+    eprintln!("no neighbours: camera vs truth {max_px:.4} px max, {ratio:.2} × its σ");
+    assert!(
+        log.contains("rolling shutter") && log.contains("kept"),
+        "the rolling shutter was not kept\n{log}"
+    );
+    assert!(max_px <= 0.6, "camera {max_px} px from the truth\n{log}");
+    assert!(ratio <= 3.0, "error {ratio} × the reported σ\n{log}");
+    assert!(
+        profile.rolling_shutter.is_none(),
+        "a readout time that was not determined is in the profile"
+    );
+
+    // Without the motion model the same frames adjust far above the detection noise, and the
+    // log says so and names the likely cause.
+    let (code, _, log) = pipemeasure(
+        dir.path(),
+        &[
+            "calibrate",
+            "--device",
+            "gs",
+            "--frames",
+            lab.join("frames").to_str().unwrap(),
+            "--sfm",
+            lab.join("sparse").to_str().unwrap(),
+            "--out",
+            dir.path().join("gs.json").to_str().unwrap(),
+            "--rolling-shutter",
+            "off",
+        ],
+        &[],
+    );
+    assert_eq!(code, 0, "{log}");
+    assert!(
+        log.contains("what sharp targets are located to")
+            && log.contains("without a rolling-shutter model"),
+        "{log}"
+    );
+}

@@ -213,6 +213,10 @@ pub struct RollingShutterEstimate {
     pub readout_std_s: f64,
     /// Whether τ was estimated (neighbouring video frames tie the motion to time).
     pub estimated: bool,
+    /// Whether τ is the device's: estimated, or given by the user. `false` when it was held
+    /// at [`NOMINAL_READOUT_S`] because frames without neighbours show only readout × rate:
+    /// the motions then served the camera, and τ is no property of the device.
+    pub determined: bool,
     /// Each adjusted frame's motion (order of [`Calibration::adjusted_frames`]; ν in the
     /// network's units per second).
     pub motions: Vec<Motion>,
@@ -355,22 +359,27 @@ pub fn calibrate(
     let links = neighbour_links(input);
     let has_neighbours = links.iter().any(|l| !l.is_empty());
     let mut config = config.clone();
-    match config.rolling_shutter {
-        // Without neighbours the readout time cannot be estimated, and the motions of frames
-        // alone leave u0 + p2 (and b1, b2) free along a rate common to all frames: on BoofCV's
-        // real dot-grid video they drifted there until the next matching lost 19 of 42
-        // frames. The model is then tried only with a readout time the user gives.
-        Some(start) if start.hold || has_neighbours => {
-            config.selection.rolling_shutter = Some(RollingShutterSetup {
-                height_px: f64::from(input.image_size.1),
-                readout_s: start.readout_s,
-                estimate_readout: false,
-            });
+    // Without neighbours one frame per instant shows only readout × rate: the readout time is
+    // held (the user's, or the nominal one) and the motions serve the camera alone. The rate
+    // common to all frames, which trades with u0, p2, b1 and b2, is then what the same
+    // significance and BIC tests weigh; on the simulated rolling-shutter labs without
+    // neighbours the model took the camera from 2.6–10.6 px to within 0.6 px of the truth.
+    let readout_nominal = config
+        .rolling_shutter
+        .is_some_and(|start| !start.hold && !has_neighbours);
+    if let Some(start) = config.rolling_shutter {
+        config.selection.rolling_shutter = Some(RollingShutterSetup {
+            height_px: f64::from(input.image_size.1),
+            readout_s: start.readout_s,
+            estimate_readout: false,
+            timed: has_neighbours,
+        });
+        if readout_nominal {
+            log(&format!(
+                "rolling shutter: no neighbouring video frames (FRAMES/frames.json) tie the frames' motions to time: tried with the readout time held at a nominal {:.0} ms; only readout × rate shows in a frame, so the readout time is not determined (give --readout-time if it is known, or extract the frames with `pipemeasure frames` to keep their neighbours) and only the camera benefits",
+                1e3 * start.readout_s
+            ));
         }
-        Some(_) => log(
-            "rolling shutter: not tried: no neighbouring video frames (FRAMES/frames.json) tie the frames' motions to time; give the readout time (--readout-time) to try it",
-        ),
-        None => {}
     }
     let config = &config;
     let estimate_readout = config.rolling_shutter.is_some_and(|r| !r.hold) && has_neighbours;
@@ -779,7 +788,7 @@ pub fn calibrate(
         return Err(CalibrateError::Input("no iteration ran".into()));
     };
     let frame_jackknife = check_by_jackknife(&mut selected, input.image_size, &config.adjust, log);
-    finish(
+    let mut cal = finish(
         selected,
         &frames,
         &cameras,
@@ -790,7 +799,55 @@ pub fn calibrate(
         warnings,
         initial,
         frame_jackknife,
-    )
+    )?;
+    if let Some(r) = cal.rolling_shutter.as_mut() {
+        r.determined = r.estimated || !readout_nominal;
+        if !r.determined {
+            let msg = format!(
+                "the rolling-shutter model was kept with the readout time held at a nominal {:.0} ms: the camera is corrected for the frames' motions, but the readout time is not determined and is left out of the profile",
+                1e3 * r.readout_s
+            );
+            log(&msg);
+            cal.warnings.push(msg);
+        }
+    }
+    if let Some(msg) = residual_warning(&cal, has_neighbours) {
+        log(&msg);
+        cal.warnings.push(msg);
+    }
+    Ok(cal)
+}
+
+/// A sharp target's centre is located to about this (px): the simulated labs and BoofCV's real
+/// dot-grid photos and video adjust to σ0 0.015–0.04 px.
+pub const DETECTION_NOISE_PX: f64 = 0.05;
+
+/// σ0 beyond this multiple of [`DETECTION_NOISE_PX`] means the model leaves out something the
+/// images show (the simulated rolling-shutter labs without a motion model adjust to 0.16–0.45 px).
+pub const SIGMA0_OVER_DETECTION_WARNING: f64 = 3.0;
+
+/// A warning when the adjustment's σ0 is far above the detection noise, naming the likely
+/// cause.
+fn residual_warning(cal: &Calibration, has_neighbours: bool) -> Option<String> {
+    let ratio = cal.sigma0 / DETECTION_NOISE_PX;
+    if ratio <= SIGMA0_OVER_DETECTION_WARNING {
+        return None;
+    }
+    let cause = match &cal.rolling_shutter {
+        None if has_neighbours => {
+            "the rolling shutter was refused although the frames have neighbours: check the frames' times in FRAMES/frames.json; else motion blur, wrong matches or a lens the model does not hold"
+        }
+        None => {
+            "frames from a video without a rolling-shutter model (extract them with `pipemeasure frames` to keep their neighbours, or give --readout-time); else motion blur, wrong matches or a lens the model does not hold"
+        }
+        Some(_) => {
+            "motion blur, a readout motion beyond the model's order, wrong matches, or a lens the model does not hold"
+        }
+    };
+    Some(format!(
+        "σ0 {:.3} px is {ratio:.0} × what sharp targets are located to ({DETECTION_NOISE_PX} px): the model leaves out something the images show; likely {cause}",
+        cal.sigma0
+    ))
 }
 
 /// Below this weight of the neighbouring video frames against the frames (their residuals
@@ -899,6 +956,7 @@ fn finish(
             readout_s: p.global[BrownModel::READOUT],
             readout_std_s: selected.readout_std_s.unwrap_or(0.0),
             estimated: setup.estimate_readout,
+            determined: true,
             motions: p
                 .local
                 .chunks(crate::adjust::CameraModel::local_len(&p.model).max(1))
@@ -1069,11 +1127,27 @@ fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String
             Term::C | Term::U0 | Term::V0 | Term::B1 | Term::B2
         )
     };
+    // Motions without neighbouring video frames leave a rate common to all frames free, and it
+    // trades with the principal point, the decentring and the affinity terms.
+    let motions_untimed = selected
+        .rolling_shutter
+        .is_some_and(|s| !s.estimate_readout);
+    let traded_by_motions = |k: usize| {
+        matches!(
+            Term::ALL[k],
+            Term::U0 | Term::V0 | Term::P1 | Term::P2 | Term::B1 | Term::B2
+        )
+    };
     for i in 0..10 {
         for j in 0..i {
             if (geometric(i) || geometric(j)) && corr[(i, j)].abs() > 0.98 {
+                let why = if motions_untimed && traded_by_motions(i) && traded_by_motions(j) {
+                    "the frames' motions, with no neighbouring video frames to tie them to time, leave a rate common to all frames that trades with both; their σ carries it (extract the frames with `pipemeasure frames` to keep their neighbours)"
+                } else {
+                    "the network does not separate them (vary the roll, portrait and landscape, and the depth)"
+                };
                 out.push(format!(
-                    "correlation of {} and {} is {:.3}: the network does not separate them (vary the roll, portrait and landscape, and the depth)",
+                    "correlation of {} and {} is {:.3}: {why}",
                     Term::ALL[j].name(),
                     Term::ALL[i].name(),
                     corr[(i, j)]

@@ -52,6 +52,10 @@ pub struct RollingShutterSetup {
     /// (`time_offset_s ≠ 0`) tie the frames' motion to time; with one frame per instant only
     /// the products readout × velocity show in the image.
     pub estimate_readout: bool,
+    /// Whether the frames' neighbours in the video will tie the motions to time. Without them
+    /// the motions are refused when they move the rows far more than the global shutter's
+    /// residuals allow ([`MAX_SHEAR_OVER_RESIDUAL`]).
+    pub timed: bool,
 }
 
 /// How terms are selected.
@@ -588,7 +592,13 @@ fn try_rolling_shutter(
         significant,
         ..
     } = test;
-    let accepted = test.accepted();
+    let shear = median_motion_shear_px(&trial.problem);
+    let shear_ratio = shear / best.precision.sigma0.max(f64::MIN_POSITIVE);
+    log(&format!(
+        "rolling shutter: the motions move the rows by {shear:.2} px (median over the frames), {shear_ratio:.1} × the global shutter's σ0"
+    ));
+    let implausible = !setup.timed && shear_ratio > MAX_SHEAR_OVER_RESIDUAL;
+    let accepted = test.accepted() && !implausible;
     let t_values = if setup.estimate_readout {
         let std = trial.precision.global_std();
         vec![trial.problem.global[BrownModel::READOUT] / std[BrownModel::READOUT]]
@@ -599,6 +609,11 @@ fn try_rolling_shutter(
         "significant, lowers BIC".to_string()
     } else if !significant {
         format!("not significant (χ² {statistic:.1} ≤ {critical:.1} for {k} unknowns)")
+    } else if implausible {
+        format!(
+            "the motions move the rows by {shear:.1} px where the global shutter leaves σ0 {:.3} px ({shear_ratio:.0} × > {MAX_SHEAR_OVER_RESIDUAL}): without neighbouring video frames they stand in for what the frames' geometry does not fix (a flat target field), not for a readout shear",
+            best.precision.sigma0
+        )
     } else {
         "does not lower BIC".to_string()
     };
@@ -634,6 +649,41 @@ fn try_rolling_shutter(
         reason,
     };
     (step, accepted.then_some(trial))
+}
+
+/// Without neighbouring video frames, motions whose row displacement is beyond this multiple of
+/// what the global-shutter adjustment leaves (its σ0) stand in for something else. A real
+/// readout shear is partly absorbed by the pose, so the global shutter keeps a share of it: on
+/// the simulated rolling-shutter labs (2–6 °/s) the motions move the rows by 2.6–4.6 × that σ0,
+/// on a motionless lab by 6.6 × (and are refused as not significant). Motions along a
+/// direction a frame's own geometry does not fix (a flat target field, where a frame
+/// determines only a homography) grow without that bound: BoofCV's real dot-grid video, 176 ×,
+/// with u0 taken 30–110 px away when they were kept.
+pub const MAX_SHEAR_OVER_RESIDUAL: f64 = 50.0;
+
+/// The median over the frames of the displacement (px) their angular rate gives between the
+/// middle row and the first or last over half the readout time `(|ω|·τ/2)·c`: what the
+/// motions claim the rows were moved by.
+#[must_use]
+pub fn median_motion_shear_px(problem: &Problem<BrownModel>) -> f64 {
+    let len = crate::adjust::CameraModel::local_len(&problem.model).max(1);
+    let half = 0.5
+        * problem
+            .global
+            .get(BrownModel::READOUT)
+            .copied()
+            .unwrap_or(0.0);
+    let c = problem.global[Term::C.index()];
+    let mut shear: Vec<f64> = problem
+        .local
+        .chunks(len)
+        .map(|m| crate::camera::rolling::Motion::from_slice(m).angular.norm() * half * c)
+        .collect();
+    if shear.is_empty() {
+        return 0.0;
+    }
+    let mid = shear.len() / 2;
+    *shear.select_nth_unstable_by(mid, f64::total_cmp).1
 }
 
 /// The readout time of a selected rolling-shutter model estimated with the `extra`

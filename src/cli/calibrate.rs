@@ -406,11 +406,17 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
         images: cal.frame_names.len(),
         targets: cal.points.len(),
         observations: cal.observations.len(),
-        rolling_shutter: cal.rolling_shutter.as_ref().map(|r| ReadoutTime {
-            readout_s: r.readout_s,
-            readout_std_s: r.readout_std_s,
-            estimated: r.estimated,
-        }),
+        // A readout time held at the nominal value (frames without neighbours) is no property
+        // of the device: left out, so a measurement does not take it for one.
+        rolling_shutter: cal
+            .rolling_shutter
+            .as_ref()
+            .filter(|r| r.determined)
+            .map(|r| ReadoutTime {
+                readout_s: r.readout_s,
+                readout_std_s: r.readout_std_s,
+                estimated: r.estimated,
+            }),
         provenance,
     }
 }
