@@ -5,7 +5,11 @@
 //! without it; every figure is checked against the simulator's truth (its camera and its
 //! readout time).
 
+#![allow(clippy::unwrap_used)]
+
 mod common;
+
+use std::path::{Path, PathBuf};
 
 use common::pipemeasure;
 use pipemeasure::calibrate::checks::{projection_difference, projection_uncertainty};
@@ -22,53 +26,50 @@ fn against_truth(profile: &Profile, truth: &Truth) -> (f64, f64) {
     (diff.max, diff.max_ratio_to(&sigma))
 }
 
+/// A simulated p30 lab filmed as video into `dir/lab` (`simulate lab --like p30 --video` and
+/// `args`); returns its folder and truth.
+fn simulate_video_lab(dir: &Path, args: &[&str]) -> (PathBuf, Truth) {
+    let lab = dir.join("lab");
+    let mut all = vec!["simulate", "lab", "--like", "p30", "--video"];
+    all.extend_from_slice(args);
+    all.extend_from_slice(&["--out", lab.to_str().unwrap(), "--quiet"]);
+    let (code, _, err) = pipemeasure(dir, &all, &[]);
+    assert_eq!(code, 0, "{err}");
+    let truth = Truth::read(&lab.join("truth.json")).unwrap();
+    (lab, truth)
+}
+
+/// `calibrate` on the lab's frames and sparse model into `dir/NAME.json` with `extra`
+/// options; returns the profile and the log.
+fn calibrate_lab(dir: &Path, lab: &Path, name: &str, extra: &[&str]) -> (Profile, String) {
+    let out = dir.join(format!("{name}.json"));
+    let (frames, sparse) = (lab.join("frames"), lab.join("sparse"));
+    let mut args = vec![
+        "calibrate",
+        "--device",
+        name,
+        "--frames",
+        frames.to_str().unwrap(),
+        "--sfm",
+        sparse.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let (code, _, err) = pipemeasure(dir, &args, &[]);
+    assert_eq!(code, 0, "{err}");
+    (Profile::read(&out).unwrap(), err)
+}
+
 #[test]
 fn a_rolling_shutter_video_calibrates_to_the_true_camera_and_readout_time() {
     let dir = tempfile::tempdir().unwrap();
-    let lab = dir.path().join("lab");
-    let lab_s = lab.to_str().unwrap();
-    let (code, _, err) = pipemeasure(
+    let (lab, truth) = simulate_video_lab(
         dir.path(),
-        &[
-            "simulate",
-            "lab",
-            "--like",
-            "p30",
-            "--width",
-            "960",
-            "--frames",
-            "40",
-            "--video",
-            "--neighbours",
-            "--out",
-            lab_s,
-            "--quiet",
-        ],
-        &[],
+        &["--width", "960", "--frames", "40", "--neighbours"],
     );
-    assert_eq!(code, 0, "{err}");
-    let truth = Truth::read(&lab.join("truth.json")).unwrap();
     let true_readout = truth.video.as_ref().unwrap().readout_s;
-    let frames = lab.join("frames");
-    let sparse = lab.join("sparse");
-    let calibrate = |name: &str, extra: &[&str]| {
-        let out = dir.path().join(format!("{name}.json"));
-        let mut args = vec![
-            "calibrate",
-            "--device",
-            name,
-            "--frames",
-            frames.to_str().unwrap(),
-            "--sfm",
-            sparse.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ];
-        args.extend_from_slice(extra);
-        let (code, _, err) = pipemeasure(dir.path(), &args, &[]);
-        assert_eq!(code, 0, "{err}");
-        (Profile::read(&out).unwrap(), err)
-    };
+    let calibrate = |name: &str, extra: &[&str]| calibrate_lab(dir.path(), &lab, name, extra);
 
     let (rolling, log) = calibrate("rolling", &[]);
     let (max_px, ratio) = against_truth(&rolling, &truth);
@@ -134,49 +135,20 @@ fn a_rolling_shutter_video_calibrates_to_the_true_camera_and_readout_time() {
 #[test]
 fn video_frames_without_neighbours_calibrate_with_a_nominal_readout() {
     let dir = tempfile::tempdir().unwrap();
-    let lab = dir.path().join("lab");
-    let (code, _, err) = pipemeasure(
+    let (lab, truth) = simulate_video_lab(
         dir.path(),
         &[
-            "simulate",
-            "lab",
-            "--like",
-            "p30",
             "--width",
             "1920",
             "--frames",
             "30",
-            "--video",
             "--readout",
             "20",
             "--angular-speed",
             "6,6",
-            "--out",
-            lab.to_str().unwrap(),
-            "--quiet",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{err}");
-    let truth = Truth::read(&lab.join("truth.json")).unwrap();
-    let out = dir.path().join("rs.json");
-    let (code, _, log) = pipemeasure(
-        dir.path(),
-        &[
-            "calibrate",
-            "--device",
-            "rs",
-            "--frames",
-            lab.join("frames").to_str().unwrap(),
-            "--sfm",
-            lab.join("sparse").to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ],
-        &[],
-    );
-    assert_eq!(code, 0, "{log}");
-    let profile = Profile::read(&out).unwrap();
+    let (profile, log) = calibrate_lab(dir.path(), &lab, "rs", &[]);
     let (max_px, ratio) = against_truth(&profile, &truth);
     eprintln!("no neighbours: camera vs truth {max_px:.4} px max, {ratio:.2} × its σ");
     assert!(
@@ -192,24 +164,7 @@ fn video_frames_without_neighbours_calibrate_with_a_nominal_readout() {
 
     // Without the motion model the same frames adjust far above the detection noise, and the
     // log says so and names the likely cause.
-    let (code, _, log) = pipemeasure(
-        dir.path(),
-        &[
-            "calibrate",
-            "--device",
-            "gs",
-            "--frames",
-            lab.join("frames").to_str().unwrap(),
-            "--sfm",
-            lab.join("sparse").to_str().unwrap(),
-            "--out",
-            dir.path().join("gs.json").to_str().unwrap(),
-            "--rolling-shutter",
-            "off",
-        ],
-        &[],
-    );
-    assert_eq!(code, 0, "{log}");
+    let (_, log) = calibrate_lab(dir.path(), &lab, "gs", &["--rolling-shutter", "off"]);
     assert!(
         log.contains("what sharp targets are located to")
             && log.contains("without a rolling-shutter model"),

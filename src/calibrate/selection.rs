@@ -682,8 +682,7 @@ pub fn median_motion_shear_px(problem: &Problem<BrownModel>) -> f64 {
     if shear.is_empty() {
         return 0.0;
     }
-    let mid = shear.len() / 2;
-    *shear.select_nth_unstable_by(mid, f64::total_cmp).1
+    crate::robust::upper_median(&mut shear)
 }
 
 /// The readout time of a selected rolling-shutter model estimated with the `extra`

@@ -421,9 +421,10 @@ impl TopK {
 }
 
 /// Hashes a cell code by one multiplication (the codes are distinct integers; SipHash's
-/// protection against chosen keys buys nothing here and costs a third of a query).
+/// protection against chosen keys buys nothing here and costs a third of a query). Also the
+/// hasher of the network's grid cells (`network::components`).
 #[derive(Default)]
-struct CellHasher(u64);
+pub(crate) struct CellHasher(u64);
 
 impl Hasher for CellHasher {
     fn finish(&self) -> u64 {

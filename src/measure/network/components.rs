@@ -76,39 +76,11 @@ pub(super) fn components(
     out
 }
 
-/// A hash map keyed by grid cells, hashed by a multiply–rotate of the three coordinates
-/// (as rustc's FxHash): the default SipHash was most of the components' time on a million
-/// points, and cell keys need no protection against adversarial collisions.
-pub(super) type CellMap<V> =
-    std::collections::HashMap<[i64; 3], V, std::hash::BuildHasherDefault<CellHasher>>;
-
-/// The hasher of [`CellMap`].
-#[derive(Default)]
-pub(super) struct CellHasher(u64);
-
-impl std::hash::Hasher for CellHasher {
-    fn finish(&self) -> u64 {
-        self.0
-    }
-
-    fn write(&mut self, bytes: &[u8]) {
-        for chunk in bytes.chunks(8) {
-            let mut word = [0u8; 8];
-            word[..chunk.len()].copy_from_slice(chunk);
-            self.write_u64(u64::from_le_bytes(word));
-        }
-    }
-
-    fn write_u64(&mut self, v: u64) {
-        const K: u64 = 0x51_7c_c1_b7_27_22_0a_95;
-        self.0 = (self.0.rotate_left(5) ^ v).wrapping_mul(K);
-    }
-
-    fn write_i64(&mut self, v: i64) {
-        self.write_u64(v as u64);
-    }
-
-    fn write_usize(&mut self, v: usize) {
-        self.write_u64(v as u64);
-    }
-}
+/// A hash map keyed by grid cells, hashed by the curve's cell hasher: the default SipHash was
+/// most of the components' time on a million points, and cell keys need no protection
+/// against adversarial collisions.
+type CellMap<V> = std::collections::HashMap<
+    [i64; 3],
+    V,
+    std::hash::BuildHasherDefault<super::super::zorder::CellHasher>,
+>;

@@ -238,24 +238,20 @@ pub(super) fn refit_straight(
         .copied()
         .filter(|&k| (lo..=hi).contains(&along(k)))
         .collect();
-    // Where the straight span drops (nearly) none of the inliers, the fit stands.
-    let dropped = fit
-        .inlier_indices
-        .par_iter()
-        .filter(|&&k| !(lo..=hi).contains(&along(k)))
-        .count();
-    if kept.len() == fit.inlier_indices.len()
-        || kept.len() < config.cylinder.min_inliers
-        || (dropped as f64) <= NEGLIGIBLE_BENT_FRACTION * fit.inlier_indices.len() as f64
-    {
-        return Some((fit, coverage, raw));
-    }
+    // The inliers within the straight span: where it drops (nearly) none, the fit stands.
     let still: Vec<usize> = fit
         .inlier_indices
         .par_iter()
         .copied()
         .filter(|&k| (lo..=hi).contains(&along(k)))
         .collect();
+    let dropped = fit.inlier_indices.len() - still.len();
+    if kept.len() == fit.inlier_indices.len()
+        || kept.len() < config.cylinder.min_inliers
+        || (dropped as f64) <= NEGLIGIBLE_BENT_FRACTION * fit.inlier_indices.len() as f64
+    {
+        return Some((fit, coverage, raw));
+    }
     match refit_warm(cloud, &kept, &c, &still, &config.cylinder) {
         Some((f, cov)) => Some((f, cov, raw)),
         None => Some((fit, coverage, raw)),
