@@ -27,9 +27,9 @@ Run from the repository root with OpenCV's Python bindings (Debian: python3-open
 
     /usr/bin/python3 scripts/boofcv_detection_eval.py target/release/pipemeasure [DETECT ARGS...]
 
-The stills are detected with `--min-semi-minor 3` (the CLI's default; their dots have b ≥ 5 px),
-the video frames with `--min-semi-minor 2` (their dots go down to b = 2.4 px), as
-tests/real_data.rs does; DETECT ARGS (e.g. `--polarity dark`) are added to both.
+Every set is detected with the CLI's defaults, each set's frames in one `detect` run (the
+stray polarity is judged over the set), as tests/real_data.rs does; DETECT ARGS (e.g.
+`--polarity both`) are added to each.
 """
 
 import json
@@ -182,7 +182,7 @@ def main():
 
     # 8x10 stills against OpenCV.
     stills = sorted((DATA / "stills_regular").glob("*.jpg"))
-    sargs = [*args, "--min-semi-minor", "3"]
+    sargs = list(args)
     det = detect(binary, sargs, stills)
     tot = [0, 0, 0, 0, 0]
     for path in stills:
@@ -216,7 +216,7 @@ def main():
 
     # 8x10 video frames against OpenCV's fixture.
     fixture = json.loads(FIXTURE.read_text())
-    vargs = [*args, "--min-semi-minor", "2"]
+    vargs = list(args)
     with tempfile.TemporaryDirectory() as tmp:
         subprocess.run(["ffmpeg", "-loglevel", "error", "-i", str(DATA / "video_regular/movie.mp4"),
                         "-vf", "select=not(mod(n\\,15))", "-vsync", "vfr", "-q:v", "2",

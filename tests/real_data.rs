@@ -35,16 +35,27 @@ fn mug_cloud_has_209280_finite_points() {
 
 const BOOFCV: &str = "../shared/data/boofcv_circle_grids";
 
-/// The detections of a real photo with the CLI's smallest semi-minor axis (3 px) and
-/// `polarity` (`None`: both).
-fn detect_photo(
-    path: &Path,
-    polarity: Option<pipemeasure::detect::DiscPolarity>,
-) -> Vec<pipemeasure::detect::DetectedEllipse> {
+/// The detections of a set of real photos with the default options, as `pipemeasure detect`
+/// makes them of the frames it is given: every photo detected, then the set's stray polarity
+/// dropped ([`pipemeasure::detect::drop_stray_polarity`]).
+fn detect_set(paths: &[std::path::PathBuf]) -> Vec<pipemeasure::detect::Detection> {
+    use pipemeasure::detect::{DetectConfig, Detector, drop_stray_polarity};
+    let config = DetectConfig::default();
+    let mut detector = Detector::new(config.clone()).unwrap();
+    let mut found: Vec<_> = paths
+        .iter()
+        .map(|p| detector.detect(&pipemeasure::io::frames::read_frame(p).unwrap()))
+        .collect();
+    drop_stray_polarity(&mut found, config.stray_polarity_share);
+    found
+}
+
+/// The detections of one real photo with every stray-polarity judgement left out: both
+/// polarities, whatever their numbers.
+fn detect_both_polarities(path: &Path) -> Vec<pipemeasure::detect::DetectedEllipse> {
     use pipemeasure::detect::{DetectConfig, Detector};
     let mut detector = Detector::new(DetectConfig {
-        min_semi_minor_px: 3.0,
-        polarity,
+        stray_polarity_share: 0.0,
         ..DetectConfig::default()
     })
     .unwrap();
@@ -54,7 +65,8 @@ fn detect_photo(
 
 /// BoofCV's real photos of its 8×10 dot grid (`stills_regular`, 640×480 JPEG; the grid's
 /// size is in its `calibration_target.yaml`): each of the six photos shows the whole grid, and
-/// exactly its 80 dark dots are found, each with the fit quality of a sharp edge.
+/// with the default options exactly its 80 dark dots are found, each with the fit quality of a
+/// sharp edge.
 #[test]
 fn boofcv_regular_grid_stills_show_exactly_the_80_dots() {
     let dir = Path::new(BOOFCV).join("stills_regular");
@@ -65,8 +77,8 @@ fn boofcv_regular_grid_stills_show_exactly_the_80_dots() {
         .collect();
     photos.sort();
     assert_eq!(photos.len(), 6);
-    for p in &photos {
-        let found = detect_photo(p, None);
+    for (p, found) in photos.iter().zip(detect_set(&photos)) {
+        let found = found.ellipses;
         let dark = found
             .iter()
             .filter(|e| e.polarity == pipemeasure::detect::DiscPolarity::Dark)
@@ -78,32 +90,44 @@ fn boofcv_regular_grid_stills_show_exactly_the_80_dots() {
 
 /// BoofCV's hexagonal grid (24 rows × 28 columns in its `calibration_target.yaml`: 336 dots —
 /// half of 24 × 28, as alternate rows are offset; not 672): in the six photos that show the
-/// whole grid, a detector looking for dark discs (as a dot grid's calibration does, and OpenCV's
-/// blob detector by default) finds exactly the 336 dots. Looking for both polarities it also
-/// finds one or two white pins off the board per photo (domes with a one-sided shadow on the
-/// brown clipboard): their appearance — step residual ≤ 0.05, interior 0.06–0.10 and surround
-/// 0.04–0.07 of the contrast — lies within what the grid's own dots show in JPEG and H.264
-/// (interior up to 0.08, surround up to 0.08), so no appearance test can drop them without
-/// dropping dots (issue 18; README "Target detection").
+/// whole grid, the default options find exactly the 336 dots and nothing else. Looking for both
+/// polarities whatever their numbers, one or two white pins off the board show per photo
+/// (domes with a one-sided shadow on the brown clipboard): their appearance — step residual
+/// ≤ 0.05, interior 0.06–0.10 and surround 0.04–0.07 of the contrast — lies within what the
+/// grid's own dots show in JPEG and H.264 (interior up to 0.08, surround up to 0.08), so no
+/// appearance test drops them without dropping dots; they are dropped as the set's stray
+/// polarity (8 of 2024 detections).
 #[test]
 fn boofcv_hexagonal_grid_stills_show_all_336_dots() {
     use pipemeasure::detect::DiscPolarity;
     let dir = Path::new(BOOFCV).join("stills_hexagonal");
-    for name in [
+    let photos: Vec<_> = [
         "image01", "image02", "image03", "image04", "image05", "image07",
-    ] {
-        let path = dir.join(format!("{name}.jpg"));
-        let dark = detect_photo(&path, Some(DiscPolarity::Dark));
-        assert_eq!(dark.len(), 336, "{name}");
-        assert!(dark.iter().all(|e| e.polarity == DiscPolarity::Dark));
-        let both = detect_photo(&path, None);
+    ]
+    .iter()
+    .map(|name| dir.join(format!("{name}.jpg")))
+    .collect();
+    let mut pins = 0;
+    for (path, found) in photos.iter().zip(detect_set(&photos)) {
+        let name = path.display();
+        assert_eq!(found.ellipses.len(), 336, "{name}");
+        assert!(
+            found
+                .ellipses
+                .iter()
+                .all(|e| e.polarity == DiscPolarity::Dark)
+        );
+        let both = detect_both_polarities(path);
         let light = both
             .iter()
             .filter(|e| e.polarity == DiscPolarity::Light)
             .count();
         assert_eq!(both.len() - light, 336, "{name}");
         assert!(light <= 2, "{name}: {light} light blobs");
+        assert_eq!(found.diagnostics.stray_polarity, light, "{name}");
+        pins += light;
     }
+    assert!(pins > 0, "the pins the stray polarity is there for");
 }
 
 /// Extracts every 15th frame of BoofCV's hand-held 8×10 dot-grid video into `dir` as the issue
@@ -138,29 +162,21 @@ fn extract_every_15th_frame_of(video: &str, dir: &Path, count: usize) {
     assert_eq!(std::fs::read_dir(dir).unwrap().count(), count);
 }
 
-/// The detector both video tests use: dark discs of semi-minor axis ≥ 2 px (the videos' dots
-/// go down to 2.4 px).
-fn video_dot_detector() -> pipemeasure::detect::Detector {
-    use pipemeasure::detect::{DetectConfig, Detector, DiscPolarity};
-    Detector::new(DetectConfig {
-        min_semi_minor_px: 2.0,
-        polarity: Some(DiscPolarity::Dark),
-        ..DetectConfig::default()
-    })
-    .unwrap()
-}
-
-/// The centres of the dots `detector` finds in the frame at `path`.
-fn dark_dot_centres(
-    detector: &mut pipemeasure::detect::Detector,
-    path: &Path,
-) -> Vec<nalgebra::Vector2<f64>> {
-    let frame = pipemeasure::io::frames::read_frame(path).unwrap();
-    detector
-        .detect(&frame)
-        .ellipses
+/// The dot centres the default options find in each of the frames in `dir`
+/// (`frame_0001.jpg` … `frame_{count}.jpg`), detected as one set as `pipemeasure detect`
+/// does (the videos' dots go down to 2.4 px in semi-minor axis).
+fn dot_centres_of_frames(dir: &Path, count: usize) -> Vec<Vec<nalgebra::Vector2<f64>>> {
+    let paths: Vec<_> = (1..=count)
+        .map(|k| dir.join(format!("frame_{k:04}.jpg")))
+        .collect();
+    detect_set(&paths)
         .iter()
-        .map(|e| nalgebra::Vector2::new(e.cx, e.cy))
+        .map(|d| {
+            d.ellipses
+                .iter()
+                .map(|e| nalgebra::Vector2::new(e.cx, e.cy))
+                .collect()
+        })
         .collect()
 }
 
@@ -168,7 +184,7 @@ fn dark_dot_centres(
 /// frames of 640×480 H.264; 336 dots, half of its 24 × 28 in `calibration_target.yaml`, as
 /// alternate rows are offset). Every frame shows the whole grid (checked by eye, and by the
 /// hexagonal lattice `scripts/boofcv_detection_eval.py` grows over the detections: exactly the
-/// 24 × 28 grid in all 35). In each frame, looking for dark discs of semi-minor axis ≥ 2 px,
+/// 24 × 28 grid in all 35). In each frame, with the default options (the 35 frames one set),
 /// exactly 336 are found, and none lies apart from the grid (farther from its nearest
 /// detection than twice the frame's median nearest-detection distance, the grid's spacing). On
 /// the densest views the dots' edges are 1.5 px apart and linking runs from one dot's edge into
@@ -181,11 +197,10 @@ fn boofcv_hexagonal_video_frames_show_all_336_dots() {
     }
     let tmp = tempfile::tempdir().unwrap();
     extract_every_15th_frame_of("video_hexagonal", tmp.path(), 35);
-    let mut detector = video_dot_detector();
+    let centres = dot_centres_of_frames(tmp.path(), 35);
     let mut short = Vec::new();
-    for k in 1..=35 {
+    for (k, found) in (1..=35).zip(centres) {
         let name = format!("frame_{k:04}.jpg");
-        let found = dark_dot_centres(&mut detector, &tmp.path().join(&name));
         if found.len() != 336 {
             short.push(format!("{name}: {}", found.len()));
             continue;
@@ -230,8 +245,8 @@ fn boofcv_hexagonal_video_frames_show_all_336_dots() {
 /// OpenCV 4.6's `findCirclesGrid` (its own blob detector, symmetric 8×10 pattern, its
 /// clustering finder where the plain one fails) found the whole grid in 39 of the frames
 /// (`tests/fixtures/boofcv_video_grid.json`, written by `scripts/boofcv_video_grid.py`; in the
-/// other three the grid runs out of the frame). In each of the 39, looking for dark discs of
-/// semi-minor axis ≥ 2 px: each of the 80 grid positions has exactly one detection within 0.3 of
+/// other three the grid runs out of the frame). In each of the 39, with the default options
+/// (the 42 frames one set): each of the 80 grid positions has exactly one detection within 0.3 of
 /// its grid spacing and 2 px (OpenCV's thresholded blob centroids differ from an edge fit by up
 /// to 1.6 px on motion-blurred dots, 0.035 px in the median), and no detection lies farther than
 /// half a spacing from every grid position. The three frames without a reference are left out:
@@ -250,7 +265,7 @@ fn boofcv_video_frames_show_every_grid_dot_and_nothing_else() {
     assert_eq!(fixture["frames_extracted"], 42);
     let frames = fixture["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 39);
-    let mut detector = video_dot_detector();
+    let centres = dot_centres_of_frames(tmp.path(), 42);
     let mut offsets = Vec::new();
     for f in frames {
         let name = f["frame"].as_str().unwrap();
@@ -279,7 +294,12 @@ fn boofcv_video_frames_show_every_grid_dot_and_nothing_else() {
                     .fold(f64::INFINITY, f64::min)
             })
             .collect();
-        let found = dark_dot_centres(&mut detector, &tmp.path().join(name));
+        let k: usize = name
+            .trim_start_matches("frame_")
+            .trim_end_matches(".jpg")
+            .parse()
+            .unwrap();
+        let found = &centres[k - 1];
         for (k, g) in grid.iter().enumerate() {
             let near: Vec<f64> = found
                 .iter()
@@ -298,7 +318,7 @@ fn boofcv_video_frames_show_every_grid_dot_and_nothing_else() {
             );
             offsets.push(near[0]);
         }
-        for p in &found {
+        for p in found {
             let on_grid = grid
                 .iter()
                 .zip(&spacing)

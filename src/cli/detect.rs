@@ -26,10 +26,12 @@ pub struct Args {
     #[arg(long)]
     overlay: Option<PathBuf>,
     /// Smallest semi-minor axis to report (px, at least 1).
-    #[arg(long, default_value_t = 3.0, value_parser = values::semi_minor_px)]
+    #[arg(long, default_value_t = pipemeasure::detect::MIN_SEMI_MINOR_PX, value_parser = values::semi_minor_px)]
     min_semi_minor: f64,
-    /// Only targets of this polarity: `dark` (black discs on white, as a dot calibration grid)
-    /// or `light`; both when not given.
+    /// Only targets of this polarity: `dark` (black discs on white, as a dot calibration grid),
+    /// `light`, or `both` whatever their numbers. When not given, both, except that a polarity
+    /// making up at most 5 % of all the frames' detections is dropped as the stray round things
+    /// around a field printed the other way (white pins beside black dots).
     #[arg(long, value_enum)]
     polarity: Option<Polarity>,
 }
@@ -39,6 +41,7 @@ pub struct Args {
 enum Polarity {
     Dark,
     Light,
+    Both,
 }
 
 #[derive(Serialize)]
@@ -51,10 +54,15 @@ struct FrameOutput<'a> {
 pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let config = DetectConfig {
         min_semi_minor_px: args.min_semi_minor,
-        polarity: args.polarity.map(|p| match p {
-            Polarity::Dark => DiscPolarity::Dark,
-            Polarity::Light => DiscPolarity::Light,
-        }),
+        polarity: match args.polarity {
+            Some(Polarity::Dark) => Some(DiscPolarity::Dark),
+            Some(Polarity::Light) => Some(DiscPolarity::Light),
+            Some(Polarity::Both) | None => None,
+        },
+        stray_polarity_share: match args.polarity {
+            None => pipemeasure::detect::STRAY_POLARITY_SHARE,
+            Some(_) => 0.0,
+        },
         ..DetectConfig::default()
     };
     Detector::new(config.clone())?;
@@ -66,40 +74,46 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         globals.quiet || args.json,
     );
     // Frames in parallel, one detector (and its buffers) per worker; results in input order.
-    let results: Vec<Result<Detection>> = args
+    let mut detections: Vec<Detection> = args
         .frames
         .par_iter()
         .map_init(
             || Detector::new(config.clone()),
             |detector, path| {
                 let detector = detector.as_mut().map_err(|e| anyhow::anyhow!("{e}"))?;
-                let frame = read_frame(path)?;
-                let detection = detector.detect(&frame);
-                if let Some(dir) = overlay_dir.as_ref().map(StagedDir::path) {
-                    let stem = path
-                        .file_stem()
-                        .map(|s| s.to_string_lossy().into_owned())
-                        .unwrap_or_default();
-                    write_png(
-                        &dir.join(format!("{stem}.png")),
-                        &DynamicImage::ImageRgb8(overlay(&frame, &detection)),
-                    )?;
-                }
+                let frame = read_frame(path)
+                    .with_context(|| format!("detecting targets in {}", path.display()))?;
                 progress.inc(1);
-                Ok(detection)
+                Ok(detector.detect(&frame))
             },
         )
-        .collect();
+        .collect::<Result<_>>()?;
     progress.finish_and_clear();
+    // The stray polarity is judged over every frame given, before anything is drawn.
+    pipemeasure::detect::drop_stray_polarity(&mut detections, config.stray_polarity_share);
+    if let Some(dir) = overlay_dir.as_ref().map(StagedDir::path) {
+        args.frames.par_iter().zip(&detections).try_for_each(
+            |(path, detection)| -> Result<()> {
+                let frame = read_frame(path)?;
+                let stem = path
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                write_png(
+                    &dir.join(format!("{stem}.png")),
+                    &DynamicImage::ImageRgb8(overlay(&frame, detection)),
+                )?;
+                Ok(())
+            },
+        )?;
+    }
     let mut found = 0;
-    for (path, result) in args.frames.iter().zip(results) {
-        let detection =
-            result.with_context(|| format!("detecting targets in {}", path.display()))?;
+    for (path, detection) in args.frames.iter().zip(&detections) {
         found += detection.ellipses.len();
         if args.json {
             let out = FrameOutput {
                 frame: path.display().to_string(),
-                detection: &detection,
+                detection,
             };
             outln!("{}", serde_json::to_string(&out)?);
         } else {

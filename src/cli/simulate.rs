@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 use pipemeasure::sim::dense::NoiseDirection;
 use pipemeasure::sim::devices::preset;
-use pipemeasure::sim::lab::LabConfig;
+use pipemeasure::sim::lab::{LabConfig, WallTexture};
 use pipemeasure::sim::plant::{PlantScanConfig, simulate_plant};
 use pipemeasure::sim::render::RenderConfig;
 use pipemeasure::sim::simulate::{
@@ -226,6 +226,18 @@ pub struct LabArgs {
     /// Leave out the floor.
     #[arg(long)]
     no_floor: bool,
+    /// The walls between the targets: `plaster` (stains and speckle at every scale) or
+    /// `speckled` (blobs of the targets' sizes sprayed over it, dark and light, some nearly
+    /// round: a test of what the detector takes for a target).
+    #[arg(long, value_enum, default_value_t = WallTextureArg::Plaster)]
+    wall_texture: WallTextureArg,
+}
+
+/// `--wall-texture`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum WallTextureArg {
+    Plaster,
+    Speckled,
 }
 
 /// `simulate site`.
@@ -429,6 +441,10 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
                 frames: args.frames,
                 targets: args.targets,
                 floor: !args.no_floor,
+                wall_texture: match args.wall_texture {
+                    WallTextureArg::Plaster => WallTexture::Plaster,
+                    WallTextureArg::Speckled => WallTexture::Speckled,
+                },
                 ..LabConfig::default()
             };
             // Every value comes from an option: what the simulator refuses (the video's options

@@ -37,11 +37,16 @@ use crate::geometry::conic::Ellipse;
 /// [`DetectConfig::min_semi_minor_px`]) but their centres carry too little edge to trust.
 pub const MIN_SEMI_MINOR_TO_MEASURE_PX: f64 = 4.0;
 
+/// The smallest semi-minor axis (px) detected by default: BoofCV's hand-held videos show dots
+/// down to 2.4 px, all found at this size with their centres' σ honest.
+pub const MIN_SEMI_MINOR_PX: f64 = 2.0;
+
 /// Detection options.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DetectConfig {
-    /// Smallest semi-minor axis reported (px), default 3.
+    /// Smallest semi-minor axis reported (px), default [`MIN_SEMI_MINOR_PX`] (the centre's σ
+    /// says how weak a small target is: [`DetectedEllipse::centre_std_px`]).
     pub min_semi_minor_px: f64,
     /// Largest semi-major axis as a fraction of the smaller image side, default 0.25.
     pub max_semi_major_fraction: f64,
@@ -87,12 +92,26 @@ pub struct DetectConfig {
     /// Canny's low threshold in noise σ of the Sobel response (the high one is twice it),
     /// default 6.
     pub threshold_sigma: f64,
+    /// Across a set of frames detected together, discs of the polarity that makes up at most
+    /// this share of the detections are dropped as the stray round things around a target
+    /// field printed the other way ([`drop_stray_polarity`]), default
+    /// [`STRAY_POLARITY_SHARE`]; 0 keeps both polarities whatever their shares.
+    pub stray_polarity_share: f64,
 }
+
+/// The default [`DetectConfig::stray_polarity_share`]: a field printed in both polarities
+/// (the paper's lab, black and white targets) shows each in quantity, while the white pins,
+/// pebbles and highlights beside BoofCV's black dot grids are 0.25–0.5 % of the detections.
+pub const STRAY_POLARITY_SHARE: f64 = 0.05;
+
+/// Fewest detections in a set before a polarity is judged stray: a handful of targets says
+/// nothing about how the field is printed.
+const MIN_DETECTIONS_TO_JUDGE_POLARITY: usize = 20;
 
 impl Default for DetectConfig {
     fn default() -> Self {
         DetectConfig {
-            min_semi_minor_px: 3.0,
+            min_semi_minor_px: MIN_SEMI_MINOR_PX,
             max_semi_major_fraction: 0.25,
             min_axis_ratio: 0.15,
             border_margin_px: 2.0,
@@ -106,6 +125,7 @@ impl Default for DetectConfig {
             max_step_residual: 0.1,
             polarity: None,
             threshold_sigma: 6.0,
+            stray_polarity_share: STRAY_POLARITY_SHARE,
         }
     }
 }
@@ -144,6 +164,9 @@ impl DetectConfig {
         }
         if !(0.0..=1.0).contains(&self.min_support) {
             return bad("min_support", "must be in [0, 1]");
+        }
+        if !(0.0..0.5).contains(&self.stray_polarity_share) {
+            return bad("stray_polarity_share", "must be in [0, 0.5)");
         }
         for (field, v) in [
             ("border_margin_px", self.border_margin_px),
@@ -254,6 +277,10 @@ pub struct DetectDiagnostics {
     pub rejected_geometry: usize,
     /// Removed as duplicates or overlaps.
     pub duplicates: usize,
+    /// Dropped as the stray polarity of the set of frames detected together
+    /// ([`drop_stray_polarity`]).
+    #[serde(default)]
+    pub stray_polarity: usize,
 }
 
 /// The ellipses found in one frame.
@@ -543,6 +570,40 @@ fn validate(
     ))
 }
 
+/// Drops, across the detections of a set of frames, the discs of a stray polarity: when one
+/// polarity makes up at most `share` of the set's detections (and the set holds at least
+/// [`MIN_DETECTIONS_TO_JUDGE_POLARITY`]), its discs are the round things around a target field
+/// printed the other way — white pins on a board of black dots, light pebbles beside it —
+/// which pass every appearance test a dot of the field passes (shaded domes in JPEG look as
+/// flat as dots in H.264). OpenCV's blob detector looks for dark blobs only unless told
+/// otherwise; this keeps both polarities when the field has both. Each frame's
+/// [`DetectDiagnostics::stray_polarity`] counts what it lost. Returns the polarity dropped, if
+/// any.
+pub fn drop_stray_polarity(detections: &mut [Detection], share: f64) -> Option<DiscPolarity> {
+    let all: Vec<&DetectedEllipse> = detections.iter().flat_map(|d| &d.ellipses).collect();
+    let light = all
+        .iter()
+        .filter(|e| e.polarity == DiscPolarity::Light)
+        .count();
+    let total = all.len();
+    if total < MIN_DETECTIONS_TO_JUDGE_POLARITY || share <= 0.0 {
+        return None;
+    }
+    let stray = if light > 0 && light as f64 <= share * total as f64 {
+        DiscPolarity::Light
+    } else if light < total && (total - light) as f64 <= share * total as f64 {
+        DiscPolarity::Dark
+    } else {
+        return None;
+    };
+    for d in detections.iter_mut() {
+        let before = d.ellipses.len();
+        d.ellipses.retain(|e| e.polarity != stray);
+        d.diagnostics.stray_polarity += before - d.ellipses.len();
+    }
+    Some(stray)
+}
+
 /// Finds the circular targets of one grey frame (a one-off [`Detector`]).
 ///
 /// # Errors
@@ -581,7 +642,7 @@ pub enum DetectFilesError {
 
 /// Detects the targets of frame files in parallel (one frame in memory per worker, one
 /// [`Detector`] per worker): per file, the detected ellipses in observed pixels, in the order
-/// of `paths`. Every frame must be `size` = (width, height) (the SfM model's camera): each
+/// of `paths`, without the set's stray polarity ([`drop_stray_polarity`]). Every frame must be `size` = (width, height) (the SfM model's camera): each
 /// file's header is checked before any frame is decoded, and the decoder may allocate only what
 /// a frame of that size needs ([`crate::io::frames::read_frame_sized`]). `progress` is called
 /// once per frame done.
@@ -609,22 +670,22 @@ pub fn detect_frame_files(
         )
         .into());
     }
-    paths
+    let mut detections = paths
         .par_iter()
         .map_init(
             || Detector::new(config.clone()),
             |detector, path| {
                 let detector = detector.as_mut().map_err(|e| e.clone())?;
                 let image = crate::io::frames::read_frame_sized(path, Some(size))?;
-                let ellipses = detector
-                    .detect(&image)
-                    .ellipses
-                    .iter()
-                    .map(DetectedEllipse::ellipse)
-                    .collect();
+                let detection = detector.detect(&image);
                 progress();
-                Ok(ellipses)
+                Ok(detection)
             },
         )
-        .collect()
+        .collect::<Result<Vec<Detection>, DetectFilesError>>()?;
+    drop_stray_polarity(&mut detections, config.stray_polarity_share);
+    Ok(detections
+        .iter()
+        .map(|d| d.ellipses.iter().map(DetectedEllipse::ellipse).collect())
+        .collect())
 }

@@ -197,9 +197,13 @@ pub fn run_site(
         .map(|im| site_dir.join("frames").join(&im.name))
         .collect();
     log(&format!("detecting targets in {} frames", paths.len()));
+    // The site command's detection: targets too small to measure left out.
+    let detect = DetectConfig {
+        min_semi_minor_px: crate::detect::MIN_SEMI_MINOR_TO_MEASURE_PX,
+        ..DetectConfig::default()
+    };
     let detected: Vec<Vec<Ellipse>> =
-        detect_frame_files(&paths, size, &DetectConfig::default(), &|| {})
-            .map_err(|e| e.to_string())?;
+        detect_frame_files(&paths, size, &detect, &|| {}).map_err(|e| e.to_string())?;
 
     let profile = profile.scaled(size.0, size.1);
     // A video's readout time, as the device's profile or data sheet gives it.

@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use super::scene::{Light, Polarity, Rect, Scene};
-use super::texture::{Texture, TextureStyle};
+use super::texture::{Speckle, Texture, TextureStyle};
 use super::truth::Orientation;
 use crate::geometry::Rigid3;
 
@@ -35,6 +35,21 @@ pub struct LabConfig {
     pub floor: bool,
     /// Frames along the path, default 90 (the paper: 90 frames at 1 fps).
     pub frames: usize,
+    /// What the walls look like between the targets, default plaster.
+    pub wall_texture: WallTexture,
+}
+
+/// The walls' texture between the targets.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WallTexture {
+    /// Painted plaster with stains and speckle at every scale ([`TextureStyle::WALL`]).
+    #[default]
+    Plaster,
+    /// The plaster with blobs of the targets' sizes sprayed over it, dark and light, from
+    /// nearly round to lumpy ([`Speckle::WALL`]): what a target detector must not take for a
+    /// target.
+    Speckled,
 }
 
 impl Default for LabConfig {
@@ -47,6 +62,7 @@ impl Default for LabConfig {
             radii_m: vec![0.010, 0.020, 0.040],
             floor: true,
             frames: 90,
+            wall_texture: WallTexture::Plaster,
         }
     }
 }
@@ -148,6 +164,12 @@ pub fn look_at(eye: &Point3<f64>, target: &Point3<f64>, up: &Vector3<f64>, roll:
 #[must_use]
 pub fn build_scene(config: &LabConfig, texel_m: f64, seed: u64) -> Scene {
     let (wa, wb, h) = (config.wall_a_m, config.wall_b_m, config.height_m);
+    let wall = |size: (f64, f64), seed: u64| match config.wall_texture {
+        WallTexture::Plaster => Texture::bake(size, texel_m, TextureStyle::WALL, seed),
+        WallTexture::Speckled => {
+            Texture::bake_speckled(size, texel_m, TextureStyle::WALL, Speckle::WALL, seed)
+        }
+    };
     let mut rects = vec![
         // Wall A: plane y = 0, u = −x, v = +z (normal +y, into the room).
         Rect::new(
@@ -156,7 +178,7 @@ pub fn build_scene(config: &LabConfig, texel_m: f64, seed: u64) -> Scene {
             -Vector3::x(),
             Vector3::z(),
             (wa, h),
-            Texture::bake((wa, h), texel_m, TextureStyle::WALL, seed ^ 0xA),
+            wall((wa, h), seed ^ 0xA),
         ),
         // Wall B: plane x = 0, u = +y, v = +z (normal +x).
         Rect::new(
@@ -165,7 +187,7 @@ pub fn build_scene(config: &LabConfig, texel_m: f64, seed: u64) -> Scene {
             Vector3::y(),
             Vector3::z(),
             (wb, h),
-            Texture::bake((wb, h), texel_m, TextureStyle::WALL, seed ^ 0xB),
+            wall((wb, h), seed ^ 0xB),
         ),
     ];
     if config.floor {

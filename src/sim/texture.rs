@@ -61,6 +61,33 @@ impl TextureStyle {
     };
 }
 
+/// Random blobs painted over a texture ([`Texture::bake_speckled`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Speckle {
+    /// Blobs per square metre.
+    pub per_m2: f64,
+    /// Smallest blob radius (m).
+    pub min_radius_m: f64,
+    /// Largest blob radius (m).
+    pub max_radius_m: f64,
+    /// Largest albedo shift of a blob (its sign and 40–100 % of it drawn per blob).
+    pub contrast: f64,
+    /// Largest relative deviation of a blob's outline from a circle.
+    pub irregularity: f64,
+}
+
+impl Speckle {
+    /// A wall sprayed and stamped for SfM: blobs of 3–40 mm radius — the targets' sizes —,
+    /// a dozen per square decimetre, of either sign, from nearly round to lumpy.
+    pub const WALL: Speckle = Speckle {
+        per_m2: 1200.0,
+        min_radius_m: 0.003,
+        max_radius_m: 0.04,
+        contrast: 0.35,
+        irregularity: 0.3,
+    };
+}
+
 /// A 64-bit mix (SplitMix64's finaliser) of the seed and lattice coordinates.
 fn hash(seed: u64, x: i64, y: i64) -> u64 {
     let mut z = seed
@@ -160,6 +187,92 @@ impl Texture {
         }
     }
 
+    /// As [`Texture::bake`], with `speckle`'s blobs painted over the plaster: the random dark
+    /// and light blotches people paint or stick on blank walls so that SfM finds features,
+    /// and that a target detector must not take for targets.
+    #[must_use]
+    pub fn bake_speckled(
+        size_m: (f64, f64),
+        texel_m: f64,
+        style: TextureStyle,
+        speckle: Speckle,
+        seed: u64,
+    ) -> Self {
+        let mut t = Self::bake_with(size_m, texel_m, style, seed, false);
+        t.paint_blobs(size_m, speckle, seed ^ 0x5BEC);
+        t
+    }
+
+    /// Paints `speckle`'s blobs into the raster. Each blob: a radius drawn log-uniformly,
+    /// an outline `r(φ) = r0 (1 + Σ_k a_k cos(kφ + φ_k))` — harmonics 2–5 whose total
+    /// amplitude is drawn between a third of `speckle.irregularity` and all of it (a blotch of
+    /// paint is lumpy, never a circle to a few per cent), plus a rough fringe of harmonics 6–16
+    /// a fifth as strong —, a soft edge a tenth of the radius wide, and an albedo shift of
+    /// either sign that varies by ±30 % across the blob at a quarter of its radius (sponged
+    /// paint is not flat), added to the plaster beneath (its texture runs on through the blob),
+    /// so blobs overlap and shade one another.
+    fn paint_blobs(&mut self, size_m: (f64, f64), speckle: Speckle, seed: u64) {
+        let count = (speckle.per_m2 * size_m.0 * size_m.1).round() as u64;
+        let uniform = |k: u64, j: i64| 0.5 * (lattice(seed, k as i64, j) + 1.0);
+        let mut shift = vec![0.0f32; self.cols * self.rows];
+        for k in 0..count {
+            let (x, y) = (uniform(k, 0) * size_m.0, uniform(k, 1) * size_m.1);
+            let r0 = speckle.min_radius_m
+                * (speckle.max_radius_m / speckle.min_radius_m).powf(uniform(k, 2));
+            let amplitude = speckle.irregularity * (1.0 + 2.0 * uniform(k, 3)) / 3.0;
+            // (harmonic, relative weight, phase): the lumps, then a fringe a fifth as strong.
+            let harmonics: Vec<(f64, f64, f64)> = (2..=16)
+                .map(|h| {
+                    let w = uniform(k, 10 + h) * if h <= 5 { 1.0 } else { 0.2 / 11.0 * 4.0 };
+                    (h as f64, w, std::f64::consts::TAU * uniform(k, 40 + h))
+                })
+                .collect();
+            let weights: f64 = harmonics
+                .iter()
+                .filter(|h| h.0 <= 5.0)
+                .map(|h| h.1)
+                .sum::<f64>()
+                .max(1e-9);
+            let mottle_seed = hash(seed, k as i64, 99);
+            let delta = speckle.contrast
+                * (0.4 + 0.6 * uniform(k, 4))
+                * if uniform(k, 5) < 0.5 { -1.0 } else { 1.0 };
+            let edge = 0.1 * r0;
+            let reach = r0 * (1.0 + 1.2 * amplitude) + edge;
+            let c0 = ((x - reach) / self.texel_m).floor().max(0.0) as usize;
+            let c1 = (((x + reach) / self.texel_m).ceil() as usize).min(self.cols - 1);
+            let r0i = ((y - reach) / self.texel_m).floor().max(0.0) as usize;
+            let r1i = (((y + reach) / self.texel_m).ceil() as usize).min(self.rows - 1);
+            for row in r0i..=r1i {
+                for col in c0..=c1 {
+                    let (dx, dy) = (col as f64 * self.texel_m - x, row as f64 * self.texel_m - y);
+                    let rho = dx.hypot(dy);
+                    if rho > reach {
+                        continue;
+                    }
+                    let phi = dy.atan2(dx);
+                    let outline = r0
+                        * (1.0
+                            + amplitude / weights
+                                * harmonics
+                                    .iter()
+                                    .map(|&(h, w, p)| w * (h * phi + p).cos())
+                                    .sum::<f64>());
+                    // Smoothstep from inside (1) to outside (0) across the soft edge.
+                    let t = ((outline + 0.5 * edge - rho) / edge).clamp(0.0, 1.0);
+                    let cover = t * t * (3.0 - 2.0 * t);
+                    let mottle =
+                        1.0 + 0.3 * value_noise(mottle_seed, 4.0 * dx / r0, 4.0 * dy / r0, 0);
+                    shift[row * self.cols + col] += (delta * mottle * cover) as f32;
+                }
+            }
+        }
+        for (v, s) in self.data.iter_mut().zip(&shift) {
+            let albedo = f64::from(*v) / 255.0 + f64::from(*s);
+            *v = (albedo.clamp(0.03, 0.97) * 255.0).round() as u8;
+        }
+    }
+
     /// A texture of one constant albedo.
     #[must_use]
     pub fn constant(albedo: f64) -> Self {
@@ -213,6 +326,30 @@ mod tests {
         assert!(diffs > 0.004, "mean 4 mm difference {diffs}");
         // Not periodic at the coarsest wavelength.
         assert!((a.albedo(0.1, 0.1) - a.albedo(0.7, 0.1)).abs() > 1e-6);
+    }
+
+    /// The speckle paints blobs of both signs over the plaster: the same seed gives the same
+    /// wall, and texels differ from the plain plaster's by up to the blobs' contrast, darker
+    /// and lighter alike.
+    #[test]
+    fn speckled_texture_paints_seeded_blobs_of_both_signs() {
+        let plain = Texture::bake((0.5, 0.5), 0.001, TextureStyle::WALL, 5);
+        let a = Texture::bake_speckled((0.5, 0.5), 0.001, TextureStyle::WALL, Speckle::WALL, 5);
+        let b = Texture::bake_speckled((0.5, 0.5), 0.001, TextureStyle::WALL, Speckle::WALL, 5);
+        assert_eq!(a.data, b.data);
+        let shifts: Vec<i32> = a
+            .data
+            .iter()
+            .zip(&plain.data)
+            .map(|(x, y)| i32::from(*x) - i32::from(*y))
+            .collect();
+        let darker = shifts.iter().filter(|&&d| d < -20).count();
+        let lighter = shifts.iter().filter(|&&d| d > 20).count();
+        // 300 blobs of mean area about 1e-3 m² over 0.25 m²: most of the wall is covered at
+        // least in part, each sign about half of it.
+        assert!(darker > shifts.len() / 10, "{darker} darker texels");
+        assert!(lighter > shifts.len() / 10, "{lighter} lighter texels");
+        assert!(shifts.iter().all(|d| d.abs() <= 240));
     }
 
     #[test]
