@@ -572,7 +572,7 @@ fn validate(
 
 /// Drops, across the detections of a set of frames, the discs of a stray polarity: when one
 /// polarity makes up at most `share` of the set's detections (and the set holds at least
-/// [`MIN_DETECTIONS_TO_JUDGE_POLARITY`]), its discs are the round things around a target field
+/// 20), its discs are the round things around a target field
 /// printed the other way — white pins on a board of black dots, light pebbles beside it —
 /// which pass every appearance test a dot of the field passes (shaded domes in JPEG look as
 /// flat as dots in H.264). OpenCV's blob detector looks for dark blobs only unless told
