@@ -6,7 +6,7 @@ use nalgebra::{Vector2, Vector3};
 
 use super::AdjustError;
 use super::model::CameraModel;
-use crate::camera::rolling::MotionOrder;
+use crate::camera::rolling::{Motion, MotionOrder};
 use crate::geometry::pose::Rigid3;
 
 /// One image measurement of a point.
@@ -243,6 +243,17 @@ impl<M: CameraModel> Problem<M> {
 }
 
 impl Problem<super::BrownModel> {
+    /// Each camera's motion, read from its block of per-camera values (of whatever motion
+    /// order; empty for a global shutter).
+    #[must_use]
+    pub fn motions(&self) -> Vec<Motion> {
+        let len = self.model.local_len();
+        if len == 0 {
+            return Vec::new();
+        }
+        self.local.chunks(len).map(Motion::from_slice).collect()
+    }
+
     /// The same problem with a rolling shutter on frames `height_px` rows high: every camera's
     /// motion `(ω, ν)` appended at zero (its per-camera values) and the readout time
     /// `readout_s` as the eleventh shared value; fixed parameters carried over, the motion and

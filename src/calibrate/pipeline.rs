@@ -957,11 +957,7 @@ fn finish(
             readout_std_s: selected.readout_std_s.unwrap_or(0.0),
             estimated: setup.estimate_readout,
             determined: true,
-            motions: p
-                .local
-                .chunks(crate::adjust::CameraModel::local_len(&p.model).max(1))
-                .map(Motion::from_slice)
-                .collect(),
+            motions: p.motions(),
         });
     let observations: Vec<CalibrationObservation> = p
         .observations

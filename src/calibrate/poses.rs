@@ -149,7 +149,7 @@ pub fn consistent_poses_rolling(
     for (frame, pose) in a1.frames.iter_mut().zip(&problem.cam_from_world) {
         frame.camera.cam_from_world = *pose;
     }
-    let motions = problem.local.chunks(6).map(Motion::from_slice).collect();
+    let motions = problem.motions();
     retriangulate(model, a1, refine);
     let cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
     refresh_pairs(&mut a1.pairs, &cameras);

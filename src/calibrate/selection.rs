@@ -666,7 +666,6 @@ pub const MAX_SHEAR_OVER_RESIDUAL: f64 = 50.0;
 /// motions claim the rows were moved by.
 #[must_use]
 pub fn median_motion_shear_px(problem: &Problem<BrownModel>) -> f64 {
-    let len = crate::adjust::CameraModel::local_len(&problem.model).max(1);
     let half = 0.5
         * problem
             .global
@@ -675,9 +674,9 @@ pub fn median_motion_shear_px(problem: &Problem<BrownModel>) -> f64 {
             .unwrap_or(0.0);
     let c = problem.global[Term::C.index()];
     let mut shear: Vec<f64> = problem
-        .local
-        .chunks(len)
-        .map(|m| crate::camera::rolling::Motion::from_slice(m).angular.norm() * half * c)
+        .motions()
+        .iter()
+        .map(|m| m.angular.norm() * half * c)
         .collect();
     if shear.is_empty() {
         return 0.0;
