@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use std::collections::HashMap;
 
-use crate::geometry::quan::{conic_centre_on_plane, conic_plane};
+use crate::geometry::quan::{conic_centre_on_plane, conic_plane, roundness_on_plane};
 use crate::geometry::triangulation::{Observation, triangulate_dlt};
 
 /// Options of Algorithm 3.
@@ -75,6 +75,11 @@ pub struct Correction {
     pub plane: Vector4<f64>,
     /// Convergence angle of the pair at the target (degrees).
     pub convergence_deg: f64,
+    /// Minor/major axis ratio of the conic this view's cone cuts from the plane
+    /// ([`roundness_on_plane`]): about 1 for a circular target, the shape's own ratio for
+    /// anything else. `None` with a fallback partner (converging by less than
+    /// [`EccentricityConfig::min_convergence_deg`]), whose plane is too loosely tilted to judge.
+    pub roundness: Option<f64>,
 }
 
 /// Upper estimate of the eccentricity of an ellipse with semi-axes `a ≥ b` seen by a camera of
@@ -217,6 +222,10 @@ pub fn correct_target(
                 partner: l,
                 plane: *plane,
                 convergence_deg,
+                // A fallback partner's narrow pair leaves the plane's tilt loose.
+                roundness: (convergence_deg > config.min_convergence_deg)
+                    .then(|| roundness_on_plane(&p_k, &views[k].conic, plane, anchor))
+                    .flatten(),
             })
         })
         .collect()

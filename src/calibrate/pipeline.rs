@@ -172,6 +172,8 @@ pub struct LoopRecord {
     pub terms: Vec<Term>,
     /// What "one target, one track" changed in the matches.
     pub consolidation: crate::calibrate::tracks::Consolidation,
+    /// Tracks dropped as not round in their plane (texture, not targets).
+    pub not_round: usize,
     /// How far the camera moved since the previous iteration: the largest difference of the
     /// two models' projections over the frame after compensating a rotation (px).
     pub camera_change_px: Option<f64>,
@@ -512,6 +514,7 @@ pub fn calibrate(
             sigma0: f64::NAN,
             terms: Vec::new(),
             consolidation: m.consolidation,
+            not_round: m.not_round,
             camera_change_px: None,
             camera_change_ratio: None,
             terms_held: false,
@@ -731,10 +734,11 @@ pub fn calibrate(
         }
         refresh_pairs(&mut pairs, &cameras);
         log(&format!(
-            "iteration {iteration}: {} targets matched ({views} views; {} merged, {} views added by their points), {} adjusted with {} observations; σ0 {:.4} px; terms {}{}",
+            "iteration {iteration}: {} targets matched ({views} views; {} merged, {} views added by their points, {} not round in their plane), {} adjusted with {} observations; σ0 {:.4} px; terms {}{}",
             m.tracks.len(),
             m.consolidation.merged,
             m.consolidation.grown,
+            m.not_round,
             selected.problem.points.len(),
             selected.precision.observations,
             selected.precision.sigma0,
@@ -1542,6 +1546,7 @@ mod tests {
             sigma0: 0.113,
             terms: vec![Term::C, Term::U0, Term::V0],
             consolidation: crate::calibrate::tracks::Consolidation::default(),
+            not_round: 0,
             camera_change_px: ratio.map(|r| 0.68 * r),
             camera_change_ratio: ratio,
             terms_held: false,

@@ -281,7 +281,7 @@ impl Context<'_> {
                 &self.config.eccentricity,
             );
             for (v, c) in views.iter_mut().zip(c) {
-                (v.corrected, v.partner) = c.map_or((None, None), |(c, p)| (Some(c), Some(p)));
+                v.set_correction(c);
             }
             point = triangulate(&observations_of(&views, self.cameras, true))?;
             if !fit_all(&views, &point) {
@@ -512,6 +512,7 @@ fn grow(ctx: &Context<'_>, tracks: &mut [Option<Track>]) -> (usize, usize) {
                 centre: ctx.observations[f][k].centre(),
                 corrected: None,
                 partner: None,
+                roundness: None,
             }));
             if let Some(g) = ctx.solve_with(views, track.rejected.clone(), &allowance) {
                 grown_track = Some(g);
@@ -727,6 +728,7 @@ mod tests {
                 centre: obs[frame][k].centre(),
                 corrected: None,
                 partner: None,
+                roundness: None,
             })
             .collect();
         let point = triangulate(&observations_of(&views, cameras, true)).unwrap();

@@ -67,6 +67,9 @@ struct ObservationOut {
     corrected: Option<[f64; 2]>,
     /// Algorithm 3's partner frame.
     partner: Option<String>,
+    /// Algorithm 3's roundness of the target in its plane from this view (minor/major axis
+    /// ratio; about 1 for a circular target).
+    roundness: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -102,6 +105,8 @@ struct MatchOut {
     candidates: usize,
     pair_matches: usize,
     conflicts: usize,
+    /// Tracks dropped as not round in their plane (Algorithm 3's cut of each view's cone).
+    not_round: usize,
     targets: Vec<TargetOut>,
 }
 
@@ -207,6 +212,7 @@ fn output(
                             .and_then(|c| cam.distort(&c))
                             .map(|c| [c.x, c.y]),
                         partner: v.partner.map(|p| frames[p].clone()),
+                        roundness: v.roundness,
                     }
                 })
                 .collect(),
@@ -228,6 +234,7 @@ fn output(
         candidates: m.candidates,
         pair_matches: m.pair_matches,
         conflicts: m.conflicts,
+        not_round: m.not_round,
         targets,
     }
 }
@@ -317,10 +324,11 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             a1.reprojection_sigma
         );
         outln!(
-            "matched {} targets with {views} views ({corrected} centres corrected by Algorithm 3); {} two-view matches, {} refused as conflicts",
+            "matched {} targets with {views} views ({corrected} centres corrected by Algorithm 3); {} two-view matches, {} refused as conflicts; {} tracks dropped as not round in their plane",
             m.tracks.len(),
             m.pair_matches,
-            m.conflicts
+            m.conflicts,
+            m.not_round
         );
         if let Some((_, profile)) = &intrinsics {
             outln!("intrinsics from {profile}");

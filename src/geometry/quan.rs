@@ -158,19 +158,16 @@ pub fn conic_plane(
     })
 }
 
-/// The 3D centre of the conic cut from the cone of view `(P, C)` by `plane` (paper Algorithm 3
-/// step 4b, eqs. 3–5, in the frame-free form of math §3.4): the plane is parametrised
-/// `X = M·w` with an orthonormal basis and a point `anchor` on it; the in-plane conic is
-/// `Mᵀ A M` and its centre the pole of the plane's line at infinity. Returns the 3D centre
-/// and its projection through `P`.
+/// The conic cut from the cone of view `(P, C)` by `plane`, in an orthonormal basis of the
+/// plane (math §3.4): `X = M·w` with `w = (s, t, 1)` and `anchor` projected onto the plane as
+/// the origin; returns `M` and the in-plane conic `Mᵀ (Pᵀ C P) M`.
 #[allow(non_snake_case)]
-#[must_use]
-pub fn conic_centre_on_plane(
+fn conic_on_plane(
     P: &Matrix3x4<f64>,
     C: &Matrix3<f64>,
     plane: &Vector4<f64>,
     anchor: &Point3<f64>,
-) -> Option<(Point3<f64>, Vector2<f64>)> {
+) -> (nalgebra::Matrix4x3<f64>, Matrix3<f64>) {
     let n = Vector3::new(plane.x, plane.y, plane.z);
     let helper = if n.z.abs() < 0.9 {
         Vector3::z()
@@ -187,7 +184,23 @@ pub fn conic_centre_on_plane(
     M.fixed_view_mut::<3, 1>(0, 2).copy_from(&x0);
     M[(3, 2)] = 1.0;
     let A = P.transpose() * C * P;
-    let Cpi = M.transpose() * A * M;
+    (M, M.transpose() * A * M)
+}
+
+/// The 3D centre of the conic cut from the cone of view `(P, C)` by `plane` (paper Algorithm 3
+/// step 4b, eqs. 3–5, in the frame-free form of math §3.4): the plane is parametrised
+/// `X = M·w` with an orthonormal basis and a point `anchor` on it; the in-plane conic is
+/// `Mᵀ A M` and its centre the pole of the plane's line at infinity. Returns the 3D centre
+/// and its projection through `P`.
+#[allow(non_snake_case)]
+#[must_use]
+pub fn conic_centre_on_plane(
+    P: &Matrix3x4<f64>,
+    C: &Matrix3<f64>,
+    plane: &Vector4<f64>,
+    anchor: &Point3<f64>,
+) -> Option<(Point3<f64>, Vector2<f64>)> {
+    let (M, Cpi) = conic_on_plane(P, C, plane, anchor);
     // Centre: adj(C_π)·(0, 0, 1)ᵀ (eq. 5 as cofactors).
     let (a, h, g) = (Cpi[(0, 0)], Cpi[(0, 1)], Cpi[(0, 2)]);
     let (b, f) = (Cpi[(1, 1)], Cpi[(1, 2)]);
@@ -203,6 +216,27 @@ pub fn conic_centre_on_plane(
         return None;
     }
     Some((X, Vector2::new(x.x / x.z, x.y / x.z)))
+}
+
+/// Roundness of the conic cut from the cone of view `(P, C)` by `plane`: its minor/major axis
+/// ratio in the plane, `sqrt(λ_min / λ_max)` of the in-plane conic's quadratic part. 1 for the
+/// image of a circle cut by the circle's own plane; a shape that is not a circle — a blot of
+/// paint an ellipse fits in the image — keeps its own ratio in every view. `None` when the cut
+/// is not an ellipse (the plane misses the cone's nappe or is parallel to a generator).
+#[allow(non_snake_case)]
+#[must_use]
+pub fn roundness_on_plane(
+    P: &Matrix3x4<f64>,
+    C: &Matrix3<f64>,
+    plane: &Vector4<f64>,
+    anchor: &Point3<f64>,
+) -> Option<f64> {
+    let (_, Cpi) = conic_on_plane(P, C, plane, anchor);
+    let q = nalgebra::Matrix2::new(Cpi[(0, 0)], Cpi[(0, 1)], Cpi[(1, 0)], Cpi[(1, 1)]);
+    let e = q.symmetric_eigen().eigenvalues;
+    let (lo, hi) = (e[0].abs().min(e[1].abs()), e[0].abs().max(e[1].abs()));
+    // Both eigenvalues of one sign: an ellipse; the axes go as 1/sqrt(λ).
+    (e[0] * e[1] > 0.0 && hi > 0.0 && hi.is_finite()).then(|| (lo / hi).sqrt())
 }
 
 /// The image of the circle's centre as the pole of the plane's vanishing line with respect to
@@ -434,6 +468,55 @@ mod tests {
             assert!((pole - truth).norm() < 1e-6);
             let ell = Ellipse::from_conic(&c2).unwrap();
             assert!((ell.centre() - truth).norm() > 1e-4);
+        }
+    }
+
+    /// The image conic of the ellipse `(s/a)² + (t/b)² = 1` in the plane through `centre` with
+    /// `normal`, axes along an orthonormal basis of the plane.
+    fn conic_of_planar_ellipse(s: &Setup, view: usize, semi_axes: (f64, f64)) -> Matrix3<f64> {
+        let helper = if s.normal.z.abs() < 0.9 {
+            Vector3::z()
+        } else {
+            Vector3::x()
+        };
+        let u = helper.cross(&s.normal).normalize();
+        let v = s.normal.cross(&u);
+        let m = nalgebra::Matrix4x3::from_columns(&[u.push(0.0), v.push(0.0), s.centre.push(1.0)]);
+        let h = camera_matrix(&s.k, &s.poses[view]) * m;
+        let on_plane = Matrix3::from_diagonal(&Vector3::new(
+            1.0 / (semi_axes.0 * semi_axes.0),
+            1.0 / (semi_axes.1 * semi_axes.1),
+            -1.0,
+        ));
+        let h_inv = h.try_inverse().unwrap();
+        h_inv.transpose() * on_plane * h_inv
+    }
+
+    #[test]
+    fn roundness_on_the_plane_is_the_shape_itself() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        for _ in 0..50 {
+            let s = setup(&mut rng);
+            let p: Vec<_> = s.poses.iter().map(|q| camera_matrix(&s.k, q)).collect();
+            let o: Vec<_> = s.poses.iter().map(camera_centre).collect();
+            let anchor = Point3::from(s.centre);
+            // A circle: round in its plane from every view, whatever the image ellipse.
+            let c: Vec<_> = (0..3).map(|v| conic(&s, v, &s.centre)).collect();
+            let sol = conic_plane(&p[0], &c[0], &o[0], &p[1], &c[1], &o[1]).unwrap();
+            for v in 0..3 {
+                let q = roundness_on_plane(&p[v], &c[v], &sol.plane, &anchor).unwrap();
+                assert!((q - 1.0).abs() < 1e-9, "circle, view {v}: {q}");
+            }
+            // A planar ellipse of axis ratio 0.8 (Quan's plane needs no circle): 0.8 in every
+            // view, though its images' axis ratios differ.
+            let e: Vec<_> = (0..3)
+                .map(|v| conic_of_planar_ellipse(&s, v, (0.05, 0.04)))
+                .collect();
+            let sol = conic_plane(&p[0], &e[0], &o[0], &p[1], &e[1], &o[1]).unwrap();
+            for v in 0..3 {
+                let q = roundness_on_plane(&p[v], &e[v], &sol.plane, &anchor).unwrap();
+                assert!((q - 0.8).abs() < 1e-9, "ellipse, view {v}: {q}");
+            }
         }
     }
 }
