@@ -177,9 +177,20 @@ fn tracks_not_round_in_their_plane_are_dropped() {
         .iter()
         .filter(|t| is_blot(prepared.ids[t.views[0].frame][t.views[0].obs].0))
         .collect();
-    eprintln!("{blots} blot tracks, {} left, {} dropped", left.len(), m.not_round);
-    assert!(left.iter().all(|t| t.roundness().is_none()), "a judged blot kept");
-    assert!(m.not_round >= blots - left.len(), "{} dropped of {blots}", m.not_round);
+    eprintln!(
+        "{blots} blot tracks, {} left, {} dropped",
+        left.len(),
+        m.not_round
+    );
+    assert!(
+        left.iter().all(|t| t.roundness().is_none()),
+        "a judged blot kept"
+    );
+    assert!(
+        m.not_round >= blots - left.len(),
+        "{} dropped of {blots}",
+        m.not_round
+    );
     // Every round target's track is kept.
     let round = |m: &pipemeasure::calibrate::matching::Matching| m.tracks.len() - blot_tracks(m);
     assert_eq!(round(&m), round(&kept_all));

@@ -591,12 +591,9 @@ fn validate(
 /// [`DetectDiagnostics::stray_polarity`] counts what it lost. Returns the polarity dropped, if
 /// any.
 pub fn drop_stray_polarity(detections: &mut [Detection], share: f64) -> Option<DiscPolarity> {
-    let all: Vec<&DetectedEllipse> = detections.iter().flat_map(|d| &d.ellipses).collect();
-    let light = all
-        .iter()
-        .filter(|e| e.polarity == DiscPolarity::Light)
-        .count();
-    let total = all.len();
+    let all = || detections.iter().flat_map(|d| &d.ellipses);
+    let light = all().filter(|e| e.polarity == DiscPolarity::Light).count();
+    let total = all().count();
     if total < MIN_DETECTIONS_TO_JUDGE_POLARITY || share <= 0.0 {
         return None;
     }
