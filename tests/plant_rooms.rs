@@ -423,3 +423,55 @@ fn an_e57_with_a_scan_per_station_and_their_poses_gives_the_same_network() {
         assert_eq!(x["inliers"], y["inliers"]);
     }
 }
+
+/// A room built unlike the others (`simulate plant --layout process`: a tank with a flanged
+/// nozzle and a line welded into its shell, a reducer, a flange pair mid-run, a horizontal
+/// tee, a short spool between elbows, a run resting on a beam): what `pipes` gets right there.
+/// Nothing is reported that is not a pipe of the truth (the tank, 0.7–0.9 m in radius, the
+/// reducer's cone and the flanges included); the line welded into the tank, the tee's branch
+/// and the riser between two elbows are each found once, their radius within 0.5 mm and the
+/// ends at the tank's shell and the elbows within 3 cm. Not yet met there (the issue's
+/// acceptance): the run through the flange pair comes out as one segment, the large pipe
+/// before the reducer is refused as showing a second radius, and the short spool between
+/// elbows is missed.
+#[test]
+fn a_process_room_reports_only_pipes_and_finds_its_plain_runs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let args = [
+        "simulate", "plant", "--layout", "process", "--out", "room", "--seed", "1", "--quiet",
+    ];
+    let (code, _, stderr) = pipemeasure(tmp.path(), &args, &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let truth: Value =
+        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("room/truth.json")).unwrap())
+            .unwrap();
+    let (code, stdout, stderr) = pipemeasure(
+        tmp.path(),
+        &["pipes", "room/tls_scan.ply", "--json", "--quiet"],
+        &[],
+    );
+    assert_eq!(code, 0, "{stderr}");
+    let network: Value = serde_json::from_str(&stdout).unwrap();
+    let found = network["segments"].as_array().unwrap();
+    let segments = truth["segments"].as_array().unwrap();
+    for g in found {
+        assert!(
+            segments.iter().any(|s| on(s, g)),
+            "not a pipe of the truth: {g}"
+        );
+    }
+    let vertical = |s: &Value| (v(&s["end"]) - v(&s["start"])).normalize().z.abs() > 0.9;
+    let plain: Vec<&Value> = segments
+        .iter()
+        .filter(|s| s["run"] == "tank-line" || s["run"] == "branch" || vertical(s))
+        .collect();
+    assert_eq!(plain.len(), 3);
+    for s in plain {
+        let hits: Vec<&Value> = found.iter().filter(|g| on(s, g)).collect();
+        assert_eq!(hits.len(), 1, "truth {s} found {hits:?}");
+        let dr = hits[0]["radius_m"].as_f64().unwrap() - s["outside_radius_m"].as_f64().unwrap();
+        assert!(dr.abs() < 0.5e-3, "{s}: radius off by {dr}");
+        let de = endpoint_error(s, hits[0]);
+        assert!(de < 0.03, "{s}: an end off by {de}");
+    }
+}

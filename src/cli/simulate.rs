@@ -6,7 +6,7 @@ use anyhow::{Context, Result, bail};
 use pipemeasure::sim::dense::NoiseDirection;
 use pipemeasure::sim::devices::preset;
 use pipemeasure::sim::lab::{LabConfig, WallTexture};
-use pipemeasure::sim::plant::{PlantScanConfig, simulate_plant};
+use pipemeasure::sim::plant::{PlantLayout, PlantScanConfig, simulate_plant};
 use pipemeasure::sim::render::RenderConfig;
 use pipemeasure::sim::simulate::{
     SfmSource, SimulateOptions, SiteOptions, frames_to_render, simulate_lab, simulate_site,
@@ -42,6 +42,12 @@ pub struct PlantArgs {
     /// Seed of the room and of the scan's noise.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// The room: `riser-header` (a riser and header, a valved header with a tee down to a
+    /// pump, a small-bore line) or `process` (a tank with a flanged nozzle and a line welded
+    /// into its shell, a reducer, a flange pair, a horizontal tee, a short spool between
+    /// elbows, a run resting on a beam).
+    #[arg(long, value_enum, default_value_t = PlantLayoutArg::RiserHeader)]
+    layout: PlantLayoutArg,
     /// Scanner stations, 1–4.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=4))]
     stations: u8,
@@ -58,6 +64,13 @@ pub struct PlantArgs {
     /// Replace an existing simulation in --out.
     #[arg(long)]
     force: bool,
+}
+
+/// `simulate plant --layout`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum PlantLayoutArg {
+    RiserHeader,
+    Process,
 }
 
 /// Options shared by the scenes.
@@ -421,8 +434,17 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             if !globals.quiet {
                 eprintln!("scanning the plant room from {} stations", args.stations);
             }
-            let truth = simulate_plant(args.seed, &config, args.e57, &args.out)
-                .with_context(|| format!("simulating a plant room into {}", args.out.display()))?;
+            let truth = simulate_plant(
+                match args.layout {
+                    PlantLayoutArg::RiserHeader => PlantLayout::RiserHeader,
+                    PlantLayoutArg::Process => PlantLayout::Process,
+                },
+                args.seed,
+                &config,
+                args.e57,
+                &args.out,
+            )
+            .with_context(|| format!("simulating a plant room into {}", args.out.display()))?;
             let [l, w, h] = truth.room;
             outln!(
                 "simulated plant room {l:.2} x {w:.2} x {h:.2} m (seed {}): {} pipe segments, {} other objects; TLS scan {} points ({} mixed pixels)\nwritten to {}",

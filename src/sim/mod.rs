@@ -11,6 +11,8 @@ pub mod dense;
 pub mod devices;
 pub mod lab;
 pub mod plant;
+mod plant_builder;
+pub mod plant_process;
 pub mod plant_site;
 pub mod render;
 pub mod scene;

@@ -20,16 +20,16 @@
 //! algorithms it judges.
 
 use nalgebra::{Point3, Vector3};
-use parry3d_f64::math::{Pose, Vector};
+use parry3d_f64::math::Vector;
 use parry3d_f64::query::Ray;
-use parry3d_f64::shape::{CompositeShapeRef, Compound, Cuboid, SharedShape};
+use parry3d_f64::shape::{CompositeShapeRef, Compound};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::plant_builder::{Builder, draw_size};
 use super::sfm::gaussian;
-use crate::geometry::solid;
 use crate::io::ply::PointCloud;
 
 /// ASME B36.10M / B36.19M nominal pipe sizes used by the simulator: (NPS, DN, outside
@@ -178,151 +178,27 @@ impl Default for PlantScanConfig {
     }
 }
 
-fn v(p: [f64; 3]) -> Vector {
-    Vector::new(p[0], p[1], p[2])
+/// Which room `simulate plant` draws.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum PlantLayout {
+    /// A riser and header, a valved header with a tee down to a pump, a small-bore line,
+    /// conduits and a column ([`plant_room`]).
+    #[default]
+    RiserHeader,
+    /// A tank with a flanged nozzle and a line welded into its shell, a reducer, a flange
+    /// pair, a horizontal tee, a short spool between elbows and a run on a beam
+    /// ([`super::plant_process::process_room`]).
+    Process,
 }
 
-/// The pose of a parry cylinder (axis along local y) from `a` to `b`.
-fn cylinder_between(a: [f64; 3], b: [f64; 3], radius: f64) -> (Pose, SharedShape) {
-    let (pose, solid) = solid::cylinder_between(&a.into(), &b.into(), radius);
-    (pose, SharedShape::new(solid))
-}
-
-/// An axis-aligned box from its corners.
-fn cuboid(min: [f64; 3], max: [f64; 3]) -> (Pose, SharedShape) {
-    let (lo, hi) = (v(min), v(max));
-    (
-        Pose::from_translation((lo + hi) * 0.5),
-        SharedShape::new(Cuboid::new((hi - lo) * 0.5)),
-    )
-}
-
-/// Collects the room's shapes and their truth as it is built.
-struct Builder {
-    shapes: Vec<(Pose, SharedShape)>,
-    parts: Vec<Part>,
-    reflectance: Vec<f64>,
-    segments: Vec<PipeSegmentTruth>,
-    objects: Vec<ObjectTruth>,
-}
-
-impl Builder {
-    fn object(&mut self, kind: &str, bounds: [[f64; 3]; 2]) -> usize {
-        let id = self.objects.len();
-        self.objects.push(ObjectTruth {
-            id,
-            kind: kind.to_string(),
-            bounds,
-        });
-        id
-    }
-
-    fn add(&mut self, shape: (Pose, SharedShape), part: Part, reflectance: f64) {
-        self.shapes.push(shape);
-        self.parts.push(part);
-        self.reflectance.push(reflectance);
-    }
-
-    fn add_box(&mut self, kind: &str, min: [f64; 3], max: [f64; 3], reflectance: f64) {
-        let id = self.object(kind, [min, max]);
-        self.add(cuboid(min, max), Part::Object(id), reflectance);
-    }
-
-    /// A cylinder object (flange, conduit, housing) from `a` to `b`.
-    fn add_round(&mut self, kind: &str, a: [f64; 3], b: [f64; 3], radius: f64, refl: f64) {
-        let id = self.object(kind, round_bounds(a, b, radius));
-        self.add(cylinder_between(a, b, radius), Part::Object(id), refl);
-    }
-
-    /// A straight pipe segment of the truth.
-    fn add_pipe(&mut self, run: &str, a: [f64; 3], b: [f64; 3], size: PipeSize, refl: f64) {
-        let id = self.segments.len();
-        self.segments.push(PipeSegmentTruth {
-            id,
-            run: run.to_string(),
-            start: a,
-            end: b,
-            outside_radius_m: size.radius(),
-            nps: size.nps.to_string(),
-            dn: size.dn,
-            material: size.material,
-        });
-        self.add(
-            cylinder_between(a, b, size.radius()),
-            Part::Segment(id),
-            refl,
-        );
-    }
-
-    /// A 90° long-radius elbow from the tangent point `a` (leaving along `from`) to the one
-    /// leaving along `to`, as 16 short cylinders along the arc: one object.
-    fn add_elbow(&mut self, a: [f64; 3], from: [f64; 3], to: [f64; 3], size: PipeSize) {
-        let (a, from, to) = (Vector3::from(a), Vector3::from(from), Vector3::from(to));
-        let bend = 1.5 * size.od_m();
-        let centre = a + to * bend;
-        let pieces = 16;
-        let at = |k: usize| {
-            let t = std::f64::consts::FRAC_PI_2 * k as f64 / pieces as f64;
-            centre - to * bend * t.cos() + from * bend * t.sin()
-        };
-        let end = at(pieces);
-        let mut lo = a.inf(&end).inf(&centre);
-        let mut hi = a.sup(&end).sup(&centre);
-        lo.add_scalar_mut(-size.radius());
-        hi.add_scalar_mut(size.radius());
-        let id = self.object("elbow", [lo.into(), hi.into()]);
-        for k in 0..pieces {
-            let (p, q) = (at(k), at(k + 1));
-            // Each piece a little longer than its chord, so the extrados has no gaps.
-            let d = (q - p).normalize() * size.radius() * 0.1;
-            self.add(
-                cylinder_between((p - d).into(), (q + d).into(), size.radius()),
-                Part::Object(id),
-                0.35,
-            );
+impl PlantLayout {
+    /// The room of `seed` in this layout.
+    #[must_use]
+    pub fn room(self, seed: u64) -> PlantRoom {
+        match self {
+            PlantLayout::RiserHeader => plant_room(seed),
+            PlantLayout::Process => super::plant_process::process_room(seed),
         }
-    }
-}
-
-fn round_bounds(a: [f64; 3], b: [f64; 3], r: f64) -> [[f64; 3]; 2] {
-    let (a, b) = (Vector3::from(a), Vector3::from(b));
-    let mut lo = a.inf(&b);
-    let mut hi = a.sup(&b);
-    lo.add_scalar_mut(-r);
-    hi.add_scalar_mut(r);
-    [lo.into(), hi.into()]
-}
-
-/// A drawn pipe size and material.
-#[derive(Clone, Copy, Debug)]
-struct PipeSize {
-    nps: &'static str,
-    dn: u32,
-    od_mm: f64,
-    material: Material,
-}
-
-impl PipeSize {
-    fn od_m(self) -> f64 {
-        self.od_mm * 1e-3
-    }
-    fn radius(self) -> f64 {
-        self.od_mm * 0.5e-3
-    }
-}
-
-fn draw_size(rng: &mut ChaCha8Rng, from: usize, to: usize) -> PipeSize {
-    let (nps, dn, od_mm) = SIM_PIPE_SIZES[rng.random_range(from..=to)];
-    let material = if rng.random_bool(0.5) {
-        Material::Steel
-    } else {
-        Material::Stainless
-    };
-    PipeSize {
-        nps,
-        dn,
-        od_mm,
-        material,
     }
 }
 
@@ -333,31 +209,8 @@ pub fn plant_room(seed: u64) -> PlantRoom {
     let length = rng.random_range(7.0..9.0);
     let width = rng.random_range(5.5..6.5);
     let height = rng.random_range(3.3..3.8);
-    let mut b = Builder {
-        shapes: Vec::new(),
-        parts: Vec::new(),
-        reflectance: Vec::new(),
-        segments: Vec::new(),
-        objects: Vec::new(),
-    };
-    let t = 0.2;
-    // Walls, floor, ceiling: slabs outside the room's volume.
-    b.add_box("floor", [-t, -t, -t], [length + t, width + t, 0.0], 0.3);
-    b.add_box(
-        "ceiling",
-        [-t, -t, height],
-        [length + t, width + t, height + t],
-        0.6,
-    );
-    b.add_box("wall", [-t, 0.0, 0.0], [0.0, width, height], 0.55);
-    b.add_box(
-        "wall",
-        [length, 0.0, 0.0],
-        [length + t, width, height],
-        0.55,
-    );
-    b.add_box("wall", [0.0, -t, 0.0], [length, 0.0, height], 0.55);
-    b.add_box("wall", [0.0, width, 0.0], [length, width + t, height], 0.55);
+    let mut b = Builder::new();
+    b.enclosure(length, width, height);
 
     // The riser and header: up from the floor at (x1, y1), elbow toward +x, into the wall.
     let riser = draw_size(&mut rng, 2, 5);
@@ -529,20 +382,7 @@ pub fn plant_room(seed: u64) -> PlantRoom {
         0.5,
     );
 
-    let truth = PlantTruth {
-        schema: "pipemeasure.plant-truth/1",
-        seed,
-        room: [length, width, height],
-        segments: b.segments,
-        objects: b.objects,
-        scan: None,
-    };
-    PlantRoom {
-        compound: Compound::new(b.shapes),
-        parts: b.parts,
-        reflectance: b.reflectance,
-        truth,
-    }
+    b.finish(seed, [length, width, height])
 }
 
 /// The scanner stations: 1.5 m above the floor, in the free floor between the equipment.
@@ -730,7 +570,7 @@ pub fn scan_into_truth(
     (cloud, per_station, truth)
 }
 
-/// `pipemeasure simulate plant`: draws the room of `seed`, scans it and writes
+/// `pipemeasure simulate plant`: draws the room of `seed` in `layout`, scans it and writes
 /// `OUT/tls_scan.ply` (x, y, z, intensity), with `e57` also `OUT/tls_scan.e57` (one scan per
 /// station, with its pose), and `OUT/truth.json` ([`PlantTruth`]), all staged and moved into
 /// place together.
@@ -739,13 +579,14 @@ pub fn scan_into_truth(
 ///
 /// [`WriteError`](crate::io::error::WriteError) naming the file that could not be written.
 pub fn simulate_plant(
+    layout: PlantLayout,
     seed: u64,
     config: &PlantScanConfig,
     e57: bool,
     out: &std::path::Path,
 ) -> Result<PlantTruth, crate::io::error::WriteError> {
     std::fs::create_dir_all(out).map_err(|e| crate::io::error::WriteError::new(out, e))?;
-    let room = plant_room(seed);
+    let room = layout.room(seed);
     let placed = stations(&room, config.stations);
     let (cloud, per_station, truth) = scan_into_truth(room, config, seed);
     let ply = crate::io::ply::stage_binary(&out.join("tls_scan.ply"), &cloud)?;
@@ -800,17 +641,19 @@ mod tests {
         assert!(checked >= 3, "{checked}");
     }
 
-    /// Every station is inside the room and inside no shape (a ray from it leaves it).
+    /// In both layouts every station is inside the room and inside no shape (a ray from it
+    /// leaves it).
     #[test]
     fn the_stations_stand_in_free_space() {
         for seed in 1..6 {
-            let room = plant_room(seed);
-            for s in stations(&room, 4) {
-                let [l, w, h] = room.truth.room;
-                assert!(s.x > 0.0 && s.x < l && s.y > 0.0 && s.y < w && s.z < h);
-                for dir in [Vector3::x(), -Vector3::x(), Vector3::y(), -Vector3::y()] {
-                    let (t, _, _) = cast(&room, &s, &dir).unwrap();
-                    assert!(t > 0.1, "seed {seed} station {s:?}: {t}");
+            for room in [PlantLayout::RiserHeader, PlantLayout::Process].map(|l| l.room(seed)) {
+                for s in stations(&room, 4) {
+                    let [l, w, h] = room.truth.room;
+                    assert!(s.x > 0.0 && s.x < l && s.y > 0.0 && s.y < w && s.z < h);
+                    for dir in [Vector3::x(), -Vector3::x(), Vector3::y(), -Vector3::y()] {
+                        let (t, _, _) = cast(&room, &s, &dir).unwrap();
+                        assert!(t > 0.1, "seed {seed} station {s:?}: {t}");
+                    }
                 }
             }
         }
