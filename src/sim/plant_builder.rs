@@ -181,7 +181,8 @@ impl Builder {
     }
 }
 
-fn round_bounds(a: [f64; 3], b: [f64; 3], r: f64) -> [[f64; 3]; 2] {
+/// The axis-aligned bounds of a round solid of radius `r` about the axis from `a` to `b`.
+pub(super) fn round_bounds(a: [f64; 3], b: [f64; 3], r: f64) -> [[f64; 3]; 2] {
     let (a, b) = (Vector3::from(a), Vector3::from(b));
     let mut lo = a.inf(&b);
     let mut hi = a.sup(&b);

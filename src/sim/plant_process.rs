@@ -20,7 +20,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::plant::{Part, PlantRoom, SIM_PIPE_SIZES};
-use super::plant_builder::{Builder, PipeSize, draw_size};
+use super::plant_builder::{Builder, PipeSize, draw_size, round_bounds};
 
 /// Points on each end circle of a reducer's cone (its convex hull is the solid).
 const REDUCER_RIM_POINTS: usize = 64;
@@ -72,12 +72,7 @@ impl Builder {
                 rim.push(Vector::new(p.x, p.y, p.z));
             }
         }
-        let r = big.radius();
-        let mut lo = pa.inf(&pb);
-        let mut hi = pa.sup(&pb);
-        lo.add_scalar_mut(-r);
-        hi.add_scalar_mut(r);
-        let id = self.object("reducer", [lo.into(), hi.into()]);
+        let id = self.object("reducer", round_bounds(a, b, big.radius()));
         if let Some(hull) = SharedShape::convex_hull(&rim) {
             self.add((Pose::IDENTITY, hull), Part::Object(id), 0.35);
         }
