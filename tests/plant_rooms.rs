@@ -424,54 +424,92 @@ fn an_e57_with_a_scan_per_station_and_their_poses_gives_the_same_network() {
     }
 }
 
-/// A room built unlike the others (`simulate plant --layout process`: a tank with a flanged
-/// nozzle and a line welded into its shell, a reducer, a flange pair mid-run, a horizontal
-/// tee, a short spool between elbows, a run resting on a beam): what `pipes` gets right there.
-/// Nothing is reported that is not a pipe of the truth (the tank, 0.7–0.9 m in radius, the
-/// reducer's cone and the flanges included); the line welded into the tank, the tee's branch
-/// and the riser between two elbows are each found once, their radius within 0.5 mm and the
-/// ends at the tank's shell and the elbows within 3 cm. Not yet met there (the issue's
-/// acceptance): the run through the flange pair comes out as one segment, the large pipe
-/// before the reducer is refused as showing a second radius, and the short spool between
-/// elbows is missed.
+/// The share of the truth segment `s`'s surface that holds scan points of `points` (within
+/// 6 mm of it): cells of 10° of azimuth by 5 cm along the axis, those holding a point over all.
+fn scanned_share(s: &Value, points: &[nalgebra::Point3<f64>]) -> f64 {
+    let (a, b) = (v(&s["start"]), v(&s["end"]));
+    let length = (b - a).norm();
+    let d = (b - a) / length;
+    let r = s["outside_radius_m"].as_f64().unwrap();
+    let e1 = d.cross(&Vector3::new(d.y, d.z, d.x)).normalize();
+    let e2 = d.cross(&e1);
+    let rows = ((length / 0.05) as usize).max(1);
+    let mut cells = vec![false; 36 * rows];
+    for p in points {
+        let w = p.coords - a;
+        let t = w.dot(&d);
+        if !(0.0..=length).contains(&t) {
+            continue;
+        }
+        let off = w - d * t;
+        if (off.norm() - r).abs() > 0.006 {
+            continue;
+        }
+        let turn = off.dot(&e2).atan2(off.dot(&e1)) / std::f64::consts::TAU + 0.5;
+        let column = ((turn * 36.0) as usize).min(35);
+        let row = ((t / length * rows as f64) as usize).min(rows - 1);
+        cells[row * 36 + column] = true;
+    }
+    cells.iter().filter(|&&c| c).count() as f64 / cells.len() as f64
+}
+
+/// Rooms built unlike the others (`simulate plant --layout process`, seeds 1–3: a tank with a
+/// flanged nozzle and a line welded into its shell, a reducer two sizes down, a flange pair
+/// mid-run, a horizontal tee, a short spool between two elbows, a run resting on a beam):
+/// every straight pipe with at least 30 % of its surface scanned found once, its radius within
+/// 0.5 mm and each end — at the tank's shell, the flange faces, the reducer's cone, the tee,
+/// the elbows' tangents and the walls — within 3 cm; nothing reported that is not a pipe of
+/// the truth (the tank, 0.7–0.9 m in radius, the reducer's cone, the flanges and the beam
+/// included). The run on the beam, a quarter of it scanned, is out of that scope, as is seed
+/// 2's line welded into the tank (28 %); both are found all the same.
 #[test]
-fn a_process_room_reports_only_pipes_and_finds_its_plain_runs() {
+fn process_rooms_find_every_scanned_pipe_once_with_its_ends_at_the_fittings() {
     let tmp = tempfile::tempdir().unwrap();
-    let args = [
-        "simulate", "plant", "--layout", "process", "--out", "room", "--seed", "1", "--quiet",
-    ];
-    let (code, _, stderr) = pipemeasure(tmp.path(), &args, &[]);
-    assert_eq!(code, 0, "{stderr}");
-    let truth: Value =
-        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("room/truth.json")).unwrap())
-            .unwrap();
-    let (code, stdout, stderr) = pipemeasure(
-        tmp.path(),
-        &["pipes", "room/tls_scan.ply", "--json", "--quiet"],
-        &[],
-    );
-    assert_eq!(code, 0, "{stderr}");
-    let network: Value = serde_json::from_str(&stdout).unwrap();
-    let found = network["segments"].as_array().unwrap();
-    let segments = truth["segments"].as_array().unwrap();
-    for g in found {
-        assert!(
-            segments.iter().any(|s| on(s, g)),
-            "not a pipe of the truth: {g}"
-        );
+    let mut in_scope = 0;
+    for seed in ["1", "2", "3"] {
+        let out = format!("room{seed}");
+        let args = [
+            "simulate", "plant", "--layout", "process", "--out", &out, "--seed", seed, "--quiet",
+        ];
+        let (code, _, stderr) = pipemeasure(tmp.path(), &args, &[]);
+        assert_eq!(code, 0, "{stderr}");
+        let dir = tmp.path().join(&out);
+        let truth: Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).unwrap())
+                .unwrap();
+        let scan = format!("{out}/tls_scan.ply");
+        let (code, stdout, stderr) =
+            pipemeasure(tmp.path(), &["pipes", &scan, "--json", "--quiet"], &[]);
+        assert_eq!(code, 0, "{stderr}");
+        let network: Value = serde_json::from_str(&stdout).unwrap();
+        let found = network["segments"].as_array().unwrap();
+        let segments = truth["segments"].as_array().unwrap();
+        assert_eq!(segments.len(), 8, "seed {seed}");
+        for g in found {
+            assert!(
+                segments.iter().any(|s| on(s, g)),
+                "seed {seed}: not a pipe of the truth: {g}"
+            );
+        }
+        let points = pipemeasure::io::ply::read(&dir.join("tls_scan.ply"))
+            .unwrap()
+            .cloud
+            .points;
+        for s in segments {
+            if scanned_share(s, &points) < 0.3 {
+                continue;
+            }
+            in_scope += 1;
+            let hits: Vec<&Value> = found.iter().filter(|g| on(s, g)).collect();
+            assert_eq!(hits.len(), 1, "seed {seed}: truth {s} found {hits:?}");
+            let dr =
+                hits[0]["radius_m"].as_f64().unwrap() - s["outside_radius_m"].as_f64().unwrap();
+            assert!(dr.abs() < 0.5e-3, "seed {seed}: {s}: radius off by {dr}");
+            let de = endpoint_error(s, hits[0]);
+            assert!(de < 0.03, "seed {seed}: {s}: an end off by {de}");
+        }
     }
-    let vertical = |s: &Value| (v(&s["end"]) - v(&s["start"])).normalize().z.abs() > 0.9;
-    let plain: Vec<&Value> = segments
-        .iter()
-        .filter(|s| s["run"] == "tank-line" || s["run"] == "branch" || vertical(s))
-        .collect();
-    assert_eq!(plain.len(), 3);
-    for s in plain {
-        let hits: Vec<&Value> = found.iter().filter(|g| on(s, g)).collect();
-        assert_eq!(hits.len(), 1, "truth {s} found {hits:?}");
-        let dr = hits[0]["radius_m"].as_f64().unwrap() - s["outside_radius_m"].as_f64().unwrap();
-        assert!(dr.abs() < 0.5e-3, "{s}: radius off by {dr}");
-        let de = endpoint_error(s, hits[0]);
-        assert!(de < 0.03, "{s}: an end off by {de}");
-    }
+    // Out of scope: the beam's run in each room (22–27 % scanned) and seed 2's line welded
+    // into the tank (28 %).
+    assert_eq!(in_scope, 20);
 }

@@ -334,6 +334,9 @@ const LOCAL_NEIGHBOURS: usize = 32;
 const TOP_HYPOTHESES: usize = 1000;
 /// Hypotheses refined before the best is chosen.
 const REFINED_HYPOTHESES: usize = 24;
+/// Refined hypotheses tried in turn, best first, when the best does not settle on every
+/// candidate point ([`fit_cylinder_among`]'s step 3).
+const MAX_SETTLE_ATTEMPTS: usize = 4;
 /// Smallest arc (rad) of the circumference the supporting points must fill (90°): a strip of
 /// a plane tangent to a large cylinder has support but no arc, and a bent strip of a stereo
 /// scan's table fills less than a quarter turn (with 60°, table artefacts beat the mug of the
@@ -641,86 +644,104 @@ fn fit_among(
     };
     let runs = box_runs(pool);
     let in_range = |c: &Cylinder| c.radius >= config.radius_min && c.radius <= config.radius_max;
-    // The first REFINED_HYPOTHESES of the best TOP_HYPOTHESES that pass, checked in parallel
-    // batches (the same ones as one by one).
-    let mut covering: Vec<Cylinder> = Vec::with_capacity(REFINED_HYPOTHESES);
+    // The first REFINED_HYPOTHESES of the best TOP_HYPOTHESES whose sample support turns
+    // around the axis and still does once refined, checked in parallel batches (the same ones
+    // as one by one). One that fails its refinement does not take a place: in a cluttered
+    // component (a beam with a short pipe on it) the best-scored hypotheses are strips of
+    // flat faces that fail, and the pipe's come later.
+    let refine_one = |c: &Cylinder| -> Option<Cylinder> {
+        let support = select(c, &sample);
+        if support.len() < 6 {
+            return None;
+        }
+        let (r, _, ss) = refine(cloud, &support, *c)?;
+        let cyl_rms = (ss / support.len() as f64).sqrt();
+        // A patch of a plane fits a large cylinder too: refuse support that a plane
+        // explains (no curvature beyond the noise).
+        let curved = plane_rms(cloud, &support) > 3.0 * cyl_rms;
+        let around = normal_coverage(cloud, &support, &r, threshold, cos_max) >= MIN_COVERAGE;
+        (in_range(&r) && curved && around).then_some(r)
+    };
+    let mut refined: Vec<Cylinder> = Vec::with_capacity(REFINED_HYPOTHESES);
     for batch in scored[..scored.len().min(TOP_HYPOTHESES)].chunks(2 * REFINED_HYPOTHESES) {
-        let pass: Vec<bool> = batch
+        let found: Vec<Option<Cylinder>> = batch
             .par_iter()
-            .map(|(_, _, c)| normal_coverage(cloud, &sample, c, threshold, cos_max) >= MIN_COVERAGE)
+            .map(|(_, _, c)| {
+                (normal_coverage(cloud, &sample, c, threshold, cos_max) >= MIN_COVERAGE)
+                    .then(|| refine_one(c))
+                    .flatten()
+            })
             .collect();
-        covering.extend(batch.iter().zip(pass).filter(|(_, p)| *p).map(|(h, _)| h.2));
-        if covering.len() >= REFINED_HYPOTHESES {
+        refined.extend(found.into_iter().flatten());
+        if refined.len() >= REFINED_HYPOTHESES {
             break;
         }
     }
-    covering.truncate(REFINED_HYPOTHESES);
-    let refined: Vec<Cylinder> = covering
-        .par_iter()
-        .filter_map(|c| {
-            let support = select(c, &sample);
-            if support.len() < 6 {
-                return None;
-            }
-            let (r, _, ss) = refine(cloud, &support, *c)?;
-            let cyl_rms = (ss / support.len() as f64).sqrt();
-            // A patch of a plane fits a large cylinder too: refuse support that a plane
-            // explains (no curvature beyond the noise).
-            let curved = plane_rms(cloud, &support) > 3.0 * cyl_rms;
-            let around = normal_coverage(cloud, &support, &r, threshold, cos_max) >= MIN_COVERAGE;
-            (in_range(&r) && curved && around).then_some(r)
-        })
-        .collect();
+    refined.truncate(REFINED_HYPOTHESES);
     // The first with the least cost wins. A candidate whose points beyond its band alone
     // cost more than the best so far is dropped before its band's local geometry is computed;
     // one whose cost passes the best part way is dropped there.
-    let mut best: Option<(f64, Cylinder)> = None;
-    for r in refined {
-        let bound = best.as_ref().map_or(f64::INFINITY, |b| b.0);
-        let band = near(cloud, &runs, &r, threshold);
-        if (pool.len() - band.len()) as f64 > bound {
-            continue;
+    let best_of = |refined: &[Cylinder]| -> Option<usize> {
+        let mut best: Option<(f64, usize)> = None;
+        for (i, r) in refined.iter().enumerate() {
+            let bound = best.as_ref().map_or(f64::INFINITY, |b| b.0);
+            let band = near(cloud, &runs, r, threshold);
+            if (pool.len() - band.len()) as f64 > bound {
+                continue;
+            }
+            cloud.prepare_at(&band);
+            if let Some(cost) = msac_within(r, &band, bound).filter(|&cost| cost < bound) {
+                best = Some((cost, i));
+            }
         }
-        cloud.prepare_at(&band);
-        if let Some(cost) = msac_within(&r, &band, bound).filter(|&cost| cost < bound) {
-            best = Some((cost, r));
-        }
-    }
-    let Some((_, mut cyl)) = best else {
-        return Err(not_found(0));
+        best.map(|b| b.1)
     };
     // Step 3: inliers over every candidate (each point's own threshold), geometric LS, until
-    // the inliers stop changing.
-    let mut inliers: Vec<usize> = Vec::new();
-    let mut result = None;
-    for _ in 0..10 {
-        let band = near(cloud, &runs, &cyl, threshold);
-        cloud.prepare_at(&band);
-        let parts: Vec<Vec<usize>> = band
-            .par_chunks(4096)
-            .map(|chunk| select(&cyl, chunk))
-            .collect();
-        let next = parts.concat();
-        if next.len() < config.min_inliers.max(6) {
-            return Err(not_found(next.len()));
+    // the inliers stop changing. A winner that does not settle (its band grows over a flat
+    // face beside it until the radius leaves the range) gives way to the next best.
+    let settle = |mut cyl: Cylinder| -> Result<CylinderFit, CylinderError> {
+        let mut inliers: Vec<usize> = Vec::new();
+        let mut result = None;
+        for _ in 0..10 {
+            let band = near(cloud, &runs, &cyl, threshold);
+            cloud.prepare_at(&band);
+            let parts: Vec<Vec<usize>> = band
+                .par_chunks(4096)
+                .map(|chunk| select(&cyl, chunk))
+                .collect();
+            let next = parts.concat();
+            if next.len() < config.min_inliers.max(6) {
+                return Err(not_found(next.len()));
+            }
+            let same = next == inliers;
+            inliers = next;
+            let Some((c, cov, ss)) = refine(cloud, &inliers, cyl) else {
+                return Err(not_found(inliers.len()));
+            };
+            cyl = c;
+            if !in_range(&cyl) {
+                return Err(not_found(0));
+            }
+            let dof = (inliers.len() - 5) as f64;
+            result = Some((cov[(4, 4)] * ss / dof, ss));
+            if same {
+                break;
+            }
         }
-        let same = next == inliers;
-        inliers = next;
-        let Some((c, cov, ss)) = refine(cloud, &inliers, cyl) else {
-            return Err(not_found(inliers.len()));
-        };
-        cyl = c;
-        if !in_range(&cyl) {
-            return Err(not_found(0));
-        }
-        let dof = (inliers.len() - 5) as f64;
-        result = Some((cov[(4, 4)] * ss / dof, ss));
-        if same {
+        let (var_r, ss) = result.ok_or_else(|| not_found(0))?;
+        Ok(summarise(cloud, &inliers, &cyl, var_r, ss))
+    };
+    let mut failure = not_found(0);
+    for _ in 0..MAX_SETTLE_ATTEMPTS {
+        let Some(i) = best_of(&refined) else {
             break;
+        };
+        match settle(refined.remove(i)) {
+            Ok(fit) => return Ok(fit),
+            Err(e) => failure = e,
         }
     }
-    let (var_r, ss) = result.ok_or_else(|| not_found(0))?;
-    Ok(summarise(cloud, &inliers, &cyl, var_r, ss))
+    Err(failure)
 }
 
 /// The fit's statistics from its inliers (curve positions), its cylinder (local frame), the

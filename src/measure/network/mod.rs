@@ -7,27 +7,33 @@
 //! 2. **Components**: the rest is cut into connected pieces on a grid of
 //!    [`NetworkConfig::cell_m`] cells; each piece is searched on its own, so a small pipe gets
 //!    the same sampling as a large one.
-//! 3. **Candidates**: in each piece, [`fit_cylinder_among`] repeatedly (fit, remove inliers):
-//!    axes with their inliers.
+//! 3. **Candidates**: in each piece, [`super::cylinder::fit_cylinder_among`] repeatedly
+//!    (fit, remove inliers): axes with their inliers; what the search of a piece leaves is
+//!    cut into pieces again and searched the same way (module `search`: a short pipe between two
+//!    elbows is a few hundred of the hundred thousand points of a tank and the runs it joins).
 //! 4. **Segments**: each candidate's inliers along its axis, cut at gaps longer than
-//!    [`NetworkConfig::gap_m`] (a valve, an occlusion too long to bridge); each piece re-fitted
-//!    alone (`cylinder::refit_among`), its endpoints the extreme inliers along the axis.
+//!    [`NetworkConfig::gap_m`] (a valve, an occlusion too long to bridge) and at the shorter
+//!    gaps a flange pair stands in (module `rings`); each piece re-fitted alone
+//!    (`cylinder::refit_among`), its endpoints the extreme inliers along the axis.
 //! 5. **Tests**, best supported first: a piece on the axis of an accepted segment with the same
-//!    radius is merged into it, with another radius refused (a flange, a nozzle, an insulated
-//!    stretch); a piece whose inliers fill less than [`NetworkConfig::min_coverage_rad`] of the
-//!    circumference is a strip of a larger curved surface; a piece shorter than
-//!    [`NetworkConfig::min_length_m`] or than [`NetworkConfig::min_length_diameters`] diameters
-//!    is a fitting or a housing (a pump's volute is a short, wide cylinder).
+//!    radius is merged into it unless a flange pair stands between them; with another radius
+//!    it is refused (a flange, a nozzle, an insulated stretch) unless it is a pipe of its own
+//!    length beyond the segment's end, the next pipe through a reducer; a piece whose inliers
+//!    fill less than [`NetworkConfig::min_coverage_rad`] of the circumference is a strip of a
+//!    larger curved surface; a piece shorter than [`NetworkConfig::min_length_m`] or than
+//!    [`NetworkConfig::min_length_diameters`] diameters is a fitting or a housing (a pump's
+//!    volute is a short, wide cylinder).
+//! 6. **Ends** (module `ends`): each segment's ends refined on every point near them — a face it
+//!    enters, a flange's rim, an elbow's or a reducer's tangent point (module `bends`).
 //!
 //! The radius of interest ([`CylinderConfig::radius_min`], `radius_max`) bounds what can be a
 //! pipe: a wall's gentle bow fits a cylinder of metres.
 
 use nalgebra::Vector3;
-use rayon::prelude::*;
 use serde::Serialize;
 
 use super::cloud::{Cloud, CloudError};
-use super::cylinder::{Cylinder, CylinderConfig, CylinderError, fit_cylinder_among};
+use super::cylinder::{CylinderConfig, CylinderError};
 use super::nominal::{NominalSize, PipeMaterial, nominal_size};
 
 /// How to extract the network.
@@ -352,48 +358,8 @@ pub fn extract_network(
     // point: a scan's clutter and outliers far from any plane never need one.
     let (planes, remaining) = remove_planes(&cloud, all, config);
     let components = components(&cloud, &remaining, config);
-    // Each component searched as a cloud of its own: its noise scale and consensus
-    // thresholds are its own (a thin pipe far from the scanner is noisier than the walls
-    // that set the whole cloud's), and a sample of it is all pipe and fittings.
-    let mut pieces: Vec<Piece> = Vec::new();
-    for comp in &components {
-        let pts: Vec<Vector3<f64>> = comp
-            .iter()
-            .map(|&pos| cloud.point_at(pos) + cloud.origin)
-            .collect();
-        let Ok(sub) = Cloud::new(&pts) else {
-            continue;
-        };
-        let mut left: Vec<usize> = (0..sub.len()).collect();
-        let mut candidates: Vec<(Cylinder, Vec<usize>)> = Vec::new();
-        for _ in 0..config.max_candidates_per_component {
-            if !candidates.is_empty() && !on_surfaces(&sub, &left) {
-                break;
-            }
-            let Ok(fit) = fit_cylinder_among(&sub, &left, &config.cylinder) else {
-                break;
-            };
-            let mut taken = vec![false; sub.len()];
-            for &k in &fit.inlier_indices {
-                taken[k] = true;
-            }
-            left.retain(|&k| !taken[k]);
-            candidates.push((fit.cylinder, fit.inlier_indices));
-            if left.len() < config.cylinder.min_inliers {
-                break;
-            }
-        }
-        // Pieces along each axis, re-fitted alone, their points renamed into the whole cloud.
-        let found: Vec<Piece> = candidates
-            .par_iter()
-            .flat_map_iter(|(cyl, inliers)| pieces_of(&sub, cyl, inliers, config))
-            .collect();
-        pieces.extend(found.into_iter().map(|mut p| {
-            p.indices = p.indices.iter().map(|&k| cloud.index_at(comp[k])).collect();
-            p.indices.sort_unstable();
-            p
-        }));
-    }
+    let searched = components.len();
+    let mut pieces = search_components(&cloud, components, config);
     // Best supported first.
     pieces.sort_by(|a, b| {
         b.indices
@@ -405,16 +371,19 @@ pub fn extract_network(
     Ok(Network {
         points: cloud.len(),
         planes,
-        components: components.len(),
+        components: searched,
         segments,
         refused,
     })
 }
 
+mod bends;
 mod clearance;
 mod components;
 mod ends;
 mod planes;
+mod rings;
+mod search;
 mod segments;
 mod shape;
 
@@ -422,7 +391,17 @@ pub use clearance::{Clearance, clearances};
 use components::components;
 use ends::end_of;
 use planes::remove_planes;
-use segments::{Piece, coaxial, gap_between, pieces_of};
+use search::search_components;
+use segments::{Piece, axial_fill, coaxial, gap_between, pieces_of, ring_between};
+
+/// Smallest share of its span a pipe beyond a reducer fills with its surface
+/// ([`axial_fill`]).
+const MIN_AXIAL_FILL: f64 = 0.6;
+
+/// How far two coaxial pieces of different radii may overlap along the axis and still be two
+/// pipes joined by a reducer (m): a concentric reducer's cone, fitted by neither, leaves a gap;
+/// the re-fits' ends move by a centimetre or two.
+const REDUCER_OVERLAP_M: f64 = 0.03;
 
 /// Step 5: merges, refusals and the accepted segments.
 fn accept(
@@ -462,12 +441,29 @@ fn accept(
             ));
             continue;
         }
+        let length = (p.end - p.start).norm();
+        let min_length = config
+            .min_length_m
+            .max(config.min_length_diameters * 2.0 * p.cylinder.radius);
         for (i, k) in kept.iter_mut().enumerate() {
             if !coaxial(k, &p, config) || gap_between(k, &p) > config.gap_m {
                 continue;
             }
+            // Two pipes bolted together at a flange pair: each a segment of its own.
+            if ring_between(k, &p) {
+                continue;
+            }
             let tolerance = (3.0 * k.radius_std.hypot(p.radius_std)).max(2e-3);
             if (k.cylinder.radius - p.cylinder.radius).abs() > tolerance {
+                // A pipe of its own length beside the segment, not along it, whose surface
+                // fills its length (not a valve's two flange rims), is the next pipe through a
+                // reducer.
+                if gap_between(k, &p) >= -REDUCER_OVERLAP_M
+                    && length >= min_length
+                    && axial_fill(cloud, &p) >= MIN_AXIAL_FILL
+                {
+                    continue;
+                }
                 refused.push(refuse(
                     &p,
                     Refusal::SecondRadius {
@@ -526,10 +522,6 @@ fn accept(
             ));
             continue;
         }
-        let length = (p.end - p.start).norm();
-        let min_length = config
-            .min_length_m
-            .max(config.min_length_diameters * 2.0 * p.cylinder.radius);
         if length < min_length {
             refused.push(refuse(
                 &p,
@@ -571,25 +563,6 @@ fn accept(
         })
         .collect();
     (segments, refused)
-}
-
-/// Points of what is left of a component whose local noise is read ([`on_surfaces`]).
-const LEFTOVER_SAMPLE: usize = 1024;
-/// What is left of a component is no surface when its points' median local noise exceeds
-/// this many times the component's: a volume of outliers (16 times the median at 30 % of a
-/// cloud), where every further fit finds a chance alignment that the tests then refuse.
-const LEFTOVER_NOISE_MULTIPLE: f64 = 5.0;
-
-/// Whether the points `left` of the component `sub` still lie on surfaces (their median
-/// local noise within [`LEFTOVER_NOISE_MULTIPLE`] of the component's typical), on an even
-/// stride of at most [`LEFTOVER_SAMPLE`] of them.
-fn on_surfaces(sub: &Cloud, left: &[usize]) -> bool {
-    let step = left.len().div_ceil(LEFTOVER_SAMPLE).max(1);
-    let sample: Vec<usize> = left.iter().step_by(step).copied().collect();
-    sub.prepare(&sample);
-    let mut noise: Vec<f64> = sample.iter().map(|&k| sub.local(k).1).collect();
-    let typical = sub.surface_noise / crate::robust::MAD_TO_SIGMA;
-    crate::robust::upper_median(&mut noise) <= LEFTOVER_NOISE_MULTIPLE * typical
 }
 
 /// Test scenery shared by the network's and the pipe of interest's tests: a 3 × 3 m floor at

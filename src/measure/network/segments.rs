@@ -7,6 +7,7 @@ use rayon::prelude::*;
 use super::super::cloud::Cloud;
 use super::super::cylinder::{Cylinder, refit_warm};
 use super::NetworkConfig;
+use super::rings::split_at_rings;
 use super::shape::{
     Flanks, Patches, SHAPE_SAMPLE, normal_arc, normal_deviation, normal_turn, shape_departure,
 };
@@ -39,6 +40,9 @@ pub(super) struct Piece {
     /// Its inliers (cloud indices), sorted.
     pub(super) indices: Vec<usize>,
     pub(super) fitted: bool,
+    /// The centres on the axis of the rings (flanges, [`super::rings`]) at which it was cut
+    /// from the next stretch of its candidate.
+    pub(super) rings: Vec<Vector3<f64>>,
 }
 
 /// The candidate's inliers cut at gaps along its axis, each stretch re-fitted alone, with its
@@ -57,8 +61,13 @@ pub(super) fn pieces_of(
     let patches = Patches::new(cloud, cyl, inliers);
     let runs = order
         .chunk_by(|a, b| b.0 - a.0 <= config.gap_m)
-        .flat_map(|run| split_unbridged(cloud, cyl, &patches, run, config.gap_m));
-    for run in runs {
+        .flat_map(|run| split_unbridged(cloud, cyl, &patches, run, config.gap_m))
+        .flat_map(|run| split_at_rings(cloud, cyl, run));
+    for (run, rings) in runs {
+        let rings: Vec<Vector3<f64>> = rings
+            .iter()
+            .map(|&t| cyl.point + cyl.direction * t)
+            .collect();
         if run.len() < config.cylinder.min_inliers {
             continue;
         }
@@ -97,6 +106,7 @@ pub(super) fn pieces_of(
                     raw: raw.map(|q| c.point + c.direction * (q - c.point).dot(&c.direction)),
                     indices: fit.inlier_indices,
                     fitted: true,
+                    rings,
                 }
             }
             None => Piece {
@@ -117,6 +127,7 @@ pub(super) fn pieces_of(
                 ],
                 indices: idx,
                 fitted: false,
+                rings,
             },
         };
         out.push(piece);
@@ -200,6 +211,53 @@ pub(super) fn gap_between(a: &Piece, b: &Piece) -> f64 {
     let (a0, a1) = (t(&a.start).min(t(&a.end)), t(&a.start).max(t(&a.end)));
     let (b0, b1) = (t(&b.start).min(t(&b.end)), t(&b.start).max(t(&b.end)));
     (b0 - a1).max(a0 - b1)
+}
+
+/// The share of a piece's span along its axis that its inliers fill, in bins of
+/// max(2 cm, r/2): nearly all of a pipe's (less a shadow or two), a fifth of the span of a
+/// valve's two flange rims, which fit one cylinder with the valve between them.
+pub(super) fn axial_fill(cloud: &Cloud, p: &Piece) -> f64 {
+    let c = &p.cylinder;
+    let bin = (0.5 * c.radius).max(0.02);
+    let t0 = (p.start - c.point).dot(&c.direction);
+    let t1 = (p.end - c.point).dot(&c.direction);
+    let (lo, hi) = (t0.min(t1), t0.max(t1));
+    let bins = (((hi - lo) / bin).ceil() as usize).max(1);
+    let mut filled = vec![false; bins];
+    for &k in &p.indices {
+        let t = (cloud.point(k) + cloud.origin - c.point).dot(&c.direction);
+        if (lo..=hi).contains(&t) {
+            filled[(((t - lo) / bin) as usize).min(bins - 1)] = true;
+        }
+    }
+    filled.iter().filter(|&&f| f).count() as f64 / bins as f64
+}
+
+/// How far a ring may lie beyond the facing ends of two pieces and still stand between them
+/// (m): their ends move by the straight-part cut and the re-fit.
+const RING_BETWEEN_TOLERANCE_M: f64 = 0.02;
+
+/// Whether a ring (a flange, [`super::rings`]) cut from either piece stands between `a` and
+/// `b` on `a`'s axis: they are two pipes bolted together, not one pipe found twice.
+pub(super) fn ring_between(a: &Piece, b: &Piece) -> bool {
+    let d = a.cylinder.direction;
+    let t = |p: &Vector3<f64>| p.dot(&d);
+    let (a0, a1) = (t(&a.start).min(t(&a.end)), t(&a.start).max(t(&a.end)));
+    let (b0, b1) = (t(&b.start).min(t(&b.end)), t(&b.start).max(t(&b.end)));
+    // The facing ends, in either order.
+    let (lo, hi) = if b0 - a1 > a0 - b1 {
+        (a1, b0)
+    } else {
+        (b1, a0)
+    };
+    let (lo, hi) = (
+        lo.min(hi) - RING_BETWEEN_TOLERANCE_M,
+        lo.max(hi) + RING_BETWEEN_TOLERANCE_M,
+    );
+    a.rings
+        .iter()
+        .chain(&b.rings)
+        .any(|r| (lo..=hi).contains(&t(r)))
 }
 
 /// [`refit_among`] and then again on the straight part of the inliers only

@@ -27,6 +27,10 @@ use crate::robust::{MAD_TO_SIGMA, upper_median};
 const PATCH_RADIUS_FRACTION: f64 = 1.0 / 3.0;
 /// Fewest points for a patch's normal.
 const MIN_PATCH_POINTS: usize = 8;
+/// How many times as wide a patch is read where the candidate's own holds too few points
+/// ([`Patches::normal`]): 2 holds four times the points, and at a third of the radius each
+/// the patch still spans only 38° of the pipe's arc.
+const SPARSE_PATCH_SCALE: i64 = 2;
 /// Most points whose patch normals a test reads (an even stride through the inliers).
 pub(super) const SHAPE_SAMPLE: usize = 4096;
 
@@ -150,25 +154,30 @@ impl Patches {
     }
 
     /// The normal at the cloud's point `k`: on a dense cloud its patch's ([`Patches::patch`]),
-    /// else the cloud's own.
+    /// else the cloud's own. Where the patch holds too few points — a long pipe's far end,
+    /// which a laser samples several times more sparsely than its near end — a patch
+    /// [`SPARSE_PATCH_SCALE`] times as wide.
     pub(super) fn normal(&self, cloud: &Cloud, k: usize) -> Option<Vector3<f64>> {
         if self.dense {
-            self.patch(&cloud.point(k))
+            let q = cloud.point(k);
+            self.patch(&q, 1)
+                .or_else(|| self.patch(&q, SPARSE_PATCH_SCALE))
         } else {
             Some(cloud.local(k).0)
         }
     }
 
-    /// The unit normal of the plane through the points within the patch radius of the local
-    /// point `q`, `None` with fewer than [`MIN_PATCH_POINTS`] or no single plane.
-    fn patch(&self, q: &Vector3<f64>) -> Option<Vector3<f64>> {
+    /// The unit normal of the plane through the points within `scale` patch radii of the
+    /// local point `q`, `None` with fewer than [`MIN_PATCH_POINTS`] or no single plane.
+    fn patch(&self, q: &Vector3<f64>, scale: i64) -> Option<Vector3<f64>> {
         let [x, y, z] = cell_of(q, self.radius);
-        let r2 = self.radius * self.radius;
+        let reach = self.radius * scale as f64;
+        let r2 = reach * reach;
         let (mut n, mut sum) = (0usize, Vector3::zeros());
         let mut c = [0.0f64; 6];
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
+        for dx in -scale..=scale {
+            for dy in -scale..=scale {
+                for dz in -scale..=scale {
                     let Some(pts) = self.cells.get(&[x + dx, y + dy, z + dz]) else {
                         continue;
                     };
