@@ -7,7 +7,8 @@
 //! segment running on through the joint (the piping's own joint, where a PCF or IFC model
 //! needs two pipes and the flanges between). A gap in the inliers along the axis is a
 //! **ring** when the points standing proud of the pipe's surface (1–15 cm out: a flange's
-//! faces and rim) within the gap surround the axis (at least [`RING_MIN_ARC_DEG`]) and are
+//! faces and rim) within the gap, those of one shell of proud distance (the rim, or a slice of
+//! a face: [`RING_SHELL_M`]), surround the axis (at least [`RING_MIN_ARC_DEG`]) and are
 //! confined to it: one side of the gap at least, over as long a stretch, holds at most a third
 //! as many (a support, a beam or a wall beside the pipe goes on along it either way; a flange
 //! does not, though a tank's shell may stand just beyond a nozzle's flange).
@@ -31,6 +32,11 @@ const RING_MIN_POINTS: usize = 15;
 /// Smallest arc about the axis a ring's points fill (degrees): a flange surrounds its pipe;
 /// something passing beside it (a crossing pipe, a beam's edge) fills less.
 const RING_MIN_ARC_DEG: f64 = 120.0;
+/// Width of the shell of proud distances whose points must surround the axis (m): a flange's
+/// rim lies at one radius, and so does a slice of its face; a bracket's or a beam's flat face
+/// below a pipe lies at a distance that changes with the azimuth, so a shell holds a narrow arc
+/// of it (all the points of a wall bracket's top under a small-bore line fill 120°).
+const RING_SHELL_M: f64 = 0.008;
 /// How many times as many proud points per metre the gap holds as either stretch beside it.
 const RING_CONFINEMENT: f64 = 3.0;
 /// The margin between a gap and the stretches beside it that it is compared with (m): a
@@ -39,6 +45,16 @@ const RING_MARGIN_M: f64 = 0.01;
 
 /// A stretch of a run's inliers `(t, k)` with the axial positions of the rings at its ends.
 pub(super) type Stretch<'a> = (&'a [(f64, usize)], Vec<f64>);
+
+/// A point standing proud of a candidate's surface.
+struct Proud {
+    /// Its axial position (from the candidate's axis point).
+    t: f64,
+    /// Its radial unit vector.
+    u: Vector3<f64>,
+    /// How far it stands off the surface (m).
+    proud: f64,
+}
 
 /// `run` (inliers `(t, k)` in axial order along `cyl`, `t` from `cyl.point`) split at the
 /// rings in its gaps (module documentation): the stretches, each with the axial positions
@@ -82,17 +98,33 @@ pub(super) fn split_at_rings<'a>(
     for &i in &gaps {
         let (a, b) = (run[i].0, run[i + 1].0);
         let w = (b - a).max(0.02);
-        let inside: Vec<&(f64, Vector3<f64>)> = proud
+        let mut inside: Vec<&Proud> = proud
             .iter()
-            .filter(|(t, _)| (a - 0.5 * RING_MARGIN_M..=b + 0.5 * RING_MARGIN_M).contains(t))
+            .filter(|p| (a - 0.5 * RING_MARGIN_M..=b + 0.5 * RING_MARGIN_M).contains(&p.t))
             .collect();
-        if inside.len() < RING_MIN_POINTS
-            || filled_arc(inside.iter().map(|(_, u)| u.dot(&e2).atan2(u.dot(&e1))))
+        if inside.len() < RING_MIN_POINTS {
+            continue;
+        }
+        // The densest shell of RING_SHELL_M: a flange's rim, or a slice of its face.
+        inside.sort_by(|x, y| x.proud.total_cmp(&y.proud));
+        let mut shell = (0, 0);
+        let mut j = 0;
+        for i in 0..inside.len() {
+            while j < inside.len() && inside[j].proud <= inside[i].proud + RING_SHELL_M {
+                j += 1;
+            }
+            if j - i > shell.1 - shell.0 {
+                shell = (i, j);
+            }
+        }
+        let shell = &inside[shell.0..shell.1];
+        if shell.len() < RING_MIN_POINTS
+            || filled_arc(shell.iter().map(|p| p.u.dot(&e2).atan2(p.u.dot(&e1))))
                 < RING_MIN_ARC_DEG.to_radians()
         {
             continue;
         }
-        let beside = |lo: f64, hi: f64| proud.iter().filter(|(t, _)| (lo..hi).contains(t)).count();
+        let beside = |lo: f64, hi: f64| proud.iter().filter(|p| (lo..hi).contains(&p.t)).count();
         let before = beside(a - RING_MARGIN_M - w, a - RING_MARGIN_M);
         let after = beside(b + RING_MARGIN_M, b + RING_MARGIN_M + w);
         // Per metre: the gap's window is its width and the margins' halves.
@@ -111,9 +143,9 @@ pub(super) fn split_at_rings<'a>(
 }
 
 /// The cloud's points standing [`RING_MIN_PROUD_M`]–[`RING_MAX_PROUD_M`] off `cyl`'s surface
-/// whose axial position lies in one of `windows` (sorted and disjoint, `t` from `cyl.point`): `(t, radial
-/// unit vector)`, in curve order. Runs of the Z-order whose box misses the shell are skipped.
-fn proud_points(cloud: &Cloud, cyl: &Cylinder, windows: &[[f64; 2]]) -> Vec<(f64, Vector3<f64>)> {
+/// whose axial position lies in one of `windows` (sorted and disjoint, `t` from
+/// `cyl.point`), in curve order. Runs of the Z-order whose box misses the shell are skipped.
+fn proud_points(cloud: &Cloud, cyl: &Cylinder, windows: &[[f64; 2]]) -> Vec<Proud> {
     let local = Cylinder {
         point: cyl.point - cloud.origin,
         ..*cyl
@@ -144,7 +176,11 @@ fn proud_points(cloud: &Cloud, cyl: &Cylinder, windows: &[[f64; 2]]) -> Vec<(f64
                 let t = w.dot(&local.direction);
                 let off = w - local.direction * t;
                 let rho = off.norm();
-                ((lo..=hi).contains(&rho) && in_window(t)).then(|| (t, off / rho))
+                ((lo..=hi).contains(&rho) && in_window(t)).then(|| Proud {
+                    t,
+                    u: off / rho,
+                    proud: rho - cyl.radius,
+                })
             })
         })
         .collect()
