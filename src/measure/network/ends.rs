@@ -1,5 +1,5 @@
-//! Step 5 of the network: where a segment ends, refined on every point of the cloud near its
-//! ends: a face it enters, an elbow's tangent point, a flange's rim.
+//! Step 6 of the network: where a segment ends, refined on every point of the cloud near its
+//! ends: a face it enters, an elbow's or a reducer's tangent point, a flange's rim.
 
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -20,10 +20,9 @@ pub(super) type EndPoint = (f64, f64, [f64; 2], f64);
 ///   normals along the axis, at one axial position (within 1 cm): a wall, floor or ceiling
 ///   the pipe enters, a flange or valve it ends at, whose points around the pipe the plane
 ///   removal or the shadow of the face took: the end is that face;
-/// - **an elbow**: the surface leaves the straight pipe's as a parabola
-///   (`δ = s²/2R` for a bend of radius `R`, `s` past the tangent point): the end is the
-///   tangent point of the best parabola, when it explains the points significantly better
-///   than the straight pipe alone;
+/// - **a bend**: the surface leaves the straight pipe's along an elbow's torus or a
+///   reducer's cone: the end is the tangent point of the better of the two, when it explains
+///   the points significantly better than the straight pipe alone (`bends::bend_tangent`);
 /// - otherwise the extreme inlier stays.
 pub(super) fn end_of(
     cloud: &Cloud,
