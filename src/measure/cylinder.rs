@@ -258,6 +258,10 @@ fn supports(
     )
 }
 
+/// Relative margin of [`support_of`]'s squared-distance pre-test: far above the rounding
+/// of a square and a square root, so the pre-test never refuses a point the exact test takes.
+const SQUARED_TEST_MARGIN: f64 = 1e-9;
+
 /// [`supports`] for the point `p` whose local geometry `local` gives.
 fn support_of(
     cloud: &Cloud,
@@ -270,9 +274,20 @@ fn support_of(
     // The radial vector once: its length gives the residual, and the normal test compares
     // |n·v| with cos_max·|v| (no second square root, no division).
     let v = cyl.offset(p);
+    let t_max = max_threshold(cloud, floor);
+    // Most points are far from the surface: refused on the squared distance first, with a
+    // margin that leaves every point near the band's edges to the exact test below.
+    let rho2 = v.norm_squared();
+    let outer = cyl.radius + t_max;
+    let inner = (cyl.radius - t_max).max(0.0);
+    if rho2 > outer * outer * (1.0 + SQUARED_TEST_MARGIN)
+        || rho2 < inner * inner * (1.0 - SQUARED_TEST_MARGIN)
+    {
+        return None;
+    }
     let rho = v.norm();
     let e = rho - cyl.radius;
-    if e.abs() > max_threshold(cloud, floor) {
+    if e.abs() > t_max {
         return None;
     }
     let (normal, noise) = local();
@@ -334,6 +349,12 @@ const LOCAL_NEIGHBOURS: usize = 32;
 const TOP_HYPOTHESES: usize = 1000;
 /// Hypotheses refined before the best is chosen.
 const REFINED_HYPOTHESES: usize = 24;
+/// Hypotheses refined at most, best first, in search of [`REFINED_HYPOTHESES`] that
+/// refine: in a cluttered component the best-scored are strips of flat faces that fail their
+/// refinement and a short pipe's come later (a process room's spool between two elbows needs
+/// 48), while a component with no pipe left would otherwise refine every one of its
+/// [`TOP_HYPOTHESES`] that passes the coverage test.
+const MAX_REFINE_ATTEMPTS: usize = 4 * REFINED_HYPOTHESES;
 /// Refined hypotheses tried in turn, best first, when the best does not settle on every
 /// candidate point ([`fit_cylinder_among`]'s step 3).
 const MAX_SETTLE_ATTEMPTS: usize = 4;
@@ -361,36 +382,61 @@ fn normal_coverage(
     cos_max: f64,
 ) -> f64 {
     let (e1, e2) = cyl.cross_section_basis();
-    filled_arc(
-        idx.iter()
-            .filter(|&&k| supports(cloud, k, cyl, threshold, cos_max).is_some())
-            .map(|&k| {
-                let u = cyl.radial(&cloud.point_at(k));
-                u.dot(&e2).atan2(u.dot(&e1))
-            }),
-    )
+    let mut arc = ArcBins::new();
+    for &k in idx {
+        if supports(cloud, k, cyl, threshold, cos_max).is_some() {
+            arc.add(azimuth(&cyl.radial(&cloud.point_at(k)), &e1, &e2));
+        }
+    }
+    arc.filled()
 }
 
-/// The arc (rad) that azimuths (from `atan2`, in [−π, π]) fill: the number of filled 10° bins
-/// (each holding at least [`FILLED_BIN_FRACTION`] of the mean count of the non-empty bins)
-/// times 10°; 0 for fewer than three azimuths.
-pub(crate) fn filled_arc(azimuths: impl Iterator<Item = f64>) -> f64 {
-    let mut bins = [0usize; COVERAGE_BINS];
-    for a in azimuths {
+/// The azimuth (rad, in [−π, π]) of the unit radial vector `u` in the cross-section basis
+/// `(e1, e2)`.
+fn azimuth(u: &Vector3<f64>, e1: &Vector3<f64>, e2: &Vector3<f64>) -> f64 {
+    u.dot(e2).atan2(u.dot(e1))
+}
+
+/// Azimuths counted in [`COVERAGE_BINS`] bins of the turn ([`filled_arc`]).
+#[derive(Clone, Copy, Debug)]
+struct ArcBins([usize; COVERAGE_BINS]);
+
+impl ArcBins {
+    /// No azimuth counted.
+    const fn new() -> Self {
+        Self([0; COVERAGE_BINS])
+    }
+
+    /// Counts the azimuth `a` (from `atan2`, in [−π, π]).
+    fn add(&mut self, a: f64) {
         let turn = a / std::f64::consts::TAU + 0.5;
         let bin = ((turn * COVERAGE_BINS as f64) as usize).min(COVERAGE_BINS - 1);
-        bins[bin] += 1;
+        self.0[bin] += 1;
     }
-    let non_empty = bins.iter().filter(|&&c| c > 0).count();
-    if non_empty == 0 || bins.iter().sum::<usize>() < 3 {
-        return 0.0;
+
+    /// The arc (rad) the counted azimuths fill: the number of filled bins (each holding at
+    /// least [`FILLED_BIN_FRACTION`] of the mean count of the non-empty bins) times the bin's
+    /// width; 0 for fewer than three azimuths.
+    fn filled(&self) -> f64 {
+        let bins = &self.0;
+        let non_empty = bins.iter().filter(|&&c| c > 0).count();
+        if non_empty == 0 || bins.iter().sum::<usize>() < 3 {
+            return 0.0;
+        }
+        let mean = bins.iter().sum::<usize>() as f64 / non_empty as f64;
+        let filled = bins
+            .iter()
+            .filter(|&&c| c as f64 >= FILLED_BIN_FRACTION * mean)
+            .count();
+        filled as f64 * std::f64::consts::TAU / COVERAGE_BINS as f64
     }
-    let mean = bins.iter().sum::<usize>() as f64 / non_empty as f64;
-    let filled = bins
-        .iter()
-        .filter(|&&c| c as f64 >= FILLED_BIN_FRACTION * mean)
-        .count();
-    filled as f64 * std::f64::consts::TAU / COVERAGE_BINS as f64
+}
+
+/// The arc (rad) that azimuths (from `atan2`, in [−π, π]) fill ([`ArcBins::filled`]).
+pub(crate) fn filled_arc(azimuths: impl Iterator<Item = f64>) -> f64 {
+    let mut arc = ArcBins::new();
+    azimuths.for_each(|a| arc.add(a));
+    arc.filled()
 }
 
 /// RMS distance of the points at curve positions `idx` from their least-squares plane.
@@ -582,8 +628,9 @@ fn fit_among(
             (cloud.point_at(k), normal, noise)
         })
         .collect();
-    // Step 2: MSAC over the subsample, hypotheses in parallel, ties broken by index.
-    let mut scored: Vec<(f64, usize, Cylinder)> = pairs
+    // Step 2: MSAC over the subsample, hypotheses in parallel, ties broken by index; the
+    // arc the supporters fill ([`normal_coverage`]) in the same pass, for step 3's test.
+    let mut scored: Vec<(f64, usize, Cylinder, f64)> = pairs
         .par_iter()
         .enumerate()
         .filter_map(|(h, &(a, b))| {
@@ -595,14 +642,18 @@ fn fit_among(
                 config,
             )?;
             // MSAC with each point's own threshold (3 × its local noise), normalised.
-            let cost: f64 = oriented
-                .iter()
-                .map(|(p, normal, noise)| {
-                    let local = || (*normal, *noise);
-                    msac_term(support_of(cloud, p, local, &cyl, threshold, cos_max))
-                })
-                .sum();
-            Some((cost, h, cyl))
+            let (e1, e2) = cyl.cross_section_basis();
+            let mut arc = ArcBins::new();
+            let mut cost = 0.0;
+            for (p, normal, noise) in &oriented {
+                let local = || (*normal, *noise);
+                let support = support_of(cloud, p, local, &cyl, threshold, cos_max);
+                if support.is_some() {
+                    arc.add(azimuth(&cyl.radial(p), &e1, &e2));
+                }
+                cost += msac_term(support);
+            }
+            Some((cost, h, cyl, arc.filled()))
         })
         .collect();
     scored.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.cmp(&y.1)));
@@ -648,7 +699,8 @@ fn fit_among(
     // around the axis and still does once refined, checked in parallel batches (the same ones
     // as one by one). One that fails its refinement does not take a place: in a cluttered
     // component (a beam with a short pipe on it) the best-scored hypotheses are strips of
-    // flat faces that fail, and the pipe's come later.
+    // flat faces that fail, and the pipe's come later; at most MAX_REFINE_ATTEMPTS are
+    // refined.
     let refine_one = |c: &Cylinder| -> Option<Cylinder> {
         let support = select(c, &sample);
         if support.len() < 6 {
@@ -663,17 +715,19 @@ fn fit_among(
         (in_range(&r) && curved && around).then_some(r)
     };
     let mut refined: Vec<Cylinder> = Vec::with_capacity(REFINED_HYPOTHESES);
+    let mut attempts = 0;
     for batch in scored[..scored.len().min(TOP_HYPOTHESES)].chunks(2 * REFINED_HYPOTHESES) {
-        let found: Vec<Option<Cylinder>> = batch
-            .par_iter()
-            .map(|(_, _, c)| {
-                (normal_coverage(cloud, &sample, c, threshold, cos_max) >= MIN_COVERAGE)
-                    .then(|| refine_one(c))
-                    .flatten()
-            })
+        let covering: Vec<&Cylinder> = batch
+            .iter()
+            .filter(|h| h.3 >= MIN_COVERAGE)
+            .map(|h| &h.2)
             .collect();
+        let take = covering.len().min(MAX_REFINE_ATTEMPTS - attempts);
+        attempts += take;
+        let found: Vec<Option<Cylinder>> =
+            covering[..take].par_iter().map(|c| refine_one(c)).collect();
         refined.extend(found.into_iter().flatten());
-        if refined.len() >= REFINED_HYPOTHESES {
+        if refined.len() >= REFINED_HYPOTHESES || attempts >= MAX_REFINE_ATTEMPTS {
             break;
         }
     }

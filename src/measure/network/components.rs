@@ -79,7 +79,7 @@ pub(super) fn components(
 /// A hash map keyed by grid cells, hashed by the curve's cell hasher: the default SipHash was
 /// most of the components' time on a million points, and cell keys need no protection
 /// against adversarial collisions.
-type CellMap<V> = std::collections::HashMap<
+pub(super) type CellMap<V> = std::collections::HashMap<
     [i64; 3],
     V,
     std::hash::BuildHasherDefault<super::super::zorder::CellHasher>,

@@ -32,24 +32,29 @@ pub(super) fn search_components(
     config: &NetworkConfig,
 ) -> Vec<Piece> {
     let mut pieces = Vec::new();
-    let mut queue: Vec<(Vec<usize>, usize)> = roots.into_iter().map(|c| (c, 0)).collect();
-    // In order (a stack would do as well: every component's pieces are sorted afterwards).
-    let mut next = 0;
-    while next < queue.len() {
-        let (comp, depth) = std::mem::take(&mut queue[next]);
-        next += 1;
-        let (found, left) = search_one(cloud, &comp, config);
-        pieces.extend(found);
-        if depth >= MAX_RESEARCH_DEPTH || left.len() < config.cylinder.min_inliers {
-            continue;
+    // Level by level, the components of a level searched in parallel (each on its own, so
+    // the result does not depend on the thread count); their leftovers make the next level.
+    let mut level = roots;
+    for depth in 0..=MAX_RESEARCH_DEPTH {
+        let searched: Vec<(Vec<Piece>, Vec<usize>)> = level
+            .par_iter()
+            .map(|comp| search_one(cloud, comp, config))
+            .collect();
+        let mut next = Vec::new();
+        for (found, left) in searched {
+            pieces.extend(found);
+            if depth >= MAX_RESEARCH_DEPTH || left.len() < config.cylinder.min_inliers {
+                continue;
+            }
+            // What was left, cut again: only when it falls apart (otherwise the same points
+            // would be searched the same way again).
+            let parts = components(cloud, &left, config);
+            if parts.len() == 1 && parts[0].len() == left.len() {
+                continue;
+            }
+            next.extend(parts);
         }
-        // What was left, cut again: only when it falls apart (otherwise the same points would
-        // be searched the same way again).
-        let parts = components(cloud, &left, config);
-        if parts.len() == 1 && parts[0].len() == left.len() {
-            continue;
-        }
-        queue.extend(parts.into_iter().map(|p| (p, depth + 1)));
+        level = next;
     }
     pieces
 }

@@ -12,13 +12,12 @@
 //! shows its own orientation. Where the cloud is sparser than that (a laser scan's far pipe),
 //! its own 16-point neighbourhoods are already as wide, and their normals are read.
 
-use std::collections::HashMap;
-
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
 use super::super::cloud::{BOX_RUN, Cloud, NORMAL_NEIGHBOURS, smallest_eigen};
 use super::super::cylinder::{Cylinder, filled_arc};
+use super::components::CellMap;
 use crate::robust::{MAD_TO_SIGMA, upper_median};
 
 /// A patch's radius as a fraction of the candidate's radius ([`Patches`]): wide enough to
@@ -55,7 +54,7 @@ pub(super) struct Patches {
     /// Whether the cloud is denser than a patch ([`patch_radius`]): otherwise the cloud's
     /// own normals are read.
     dense: bool,
-    cells: HashMap<[i64; 3], Vec<Vector3<f64>>>,
+    cells: CellMap<Vec<Vector3<f64>>>,
     /// The radial profile around the surface.
     pub(super) flanks: Flanks,
 }
@@ -130,7 +129,7 @@ impl Patches {
                     .collect()
             })
             .collect();
-        let mut cells: HashMap<[i64; 3], Vec<Vector3<f64>>> = HashMap::new();
+        let mut cells: CellMap<Vec<Vector3<f64>>> = CellMap::default();
         let mut flanks = Flanks {
             band_m: band,
             ..Flanks::default()
