@@ -430,9 +430,15 @@ impl Hasher for CellHasher {
     fn finish(&self) -> u64 {
         self.0
     }
+    /// Word by word (a grid cell's three coordinates are three words; byte by byte, their
+    /// hash was 7 % of a million-point network pass). The rotation brings the previous
+    /// product's well-mixed high bits down to the low bits a table indexes by.
     fn write(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            self.0 = (self.0.rotate_left(8) ^ u64::from(b)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        for word in bytes.chunks(8) {
+            let mut le = [0u8; 8];
+            le[..word.len()].copy_from_slice(word);
+            self.0 = (self.0.rotate_left(29) ^ u64::from_le_bytes(le))
+                .wrapping_mul(0x9e37_79b9_7f4a_7c15);
         }
     }
     fn write_u64(&mut self, v: u64) {
