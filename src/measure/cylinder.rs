@@ -351,9 +351,9 @@ const TOP_HYPOTHESES: usize = 1000;
 const REFINED_HYPOTHESES: usize = 24;
 /// Hypotheses refined at most, best first, in search of [`REFINED_HYPOTHESES`] that
 /// refine: in a cluttered component the best-scored are strips of flat faces that fail their
-/// refinement and a short pipe's come later (a process room's spool between two elbows needs
-/// 48), while a component with no pipe left would otherwise refine every one of its
-/// [`TOP_HYPOTHESES`] that passes the coverage test.
+/// refinement and a short pipe's come later (a process room's spool between two elbows was
+/// missed with a cap of 24 or 32 and found with 48), while a component with no pipe left
+/// would otherwise refine every one of its [`TOP_HYPOTHESES`] that passes the coverage test.
 const MAX_REFINE_ATTEMPTS: usize = 4 * REFINED_HYPOTHESES;
 /// Refined hypotheses tried in turn, best first, when the best does not settle on every
 /// candidate point ([`fit_cylinder_among`]'s step 3).
