@@ -14,5 +14,6 @@ pub mod pipeline;
 pub mod poses;
 pub mod refine;
 pub mod selection;
+pub mod track;
 pub mod tracks;
 pub mod views;

@@ -17,11 +17,19 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::{Matrix3, Vector2, Vector3};
 
-use crate::calibrate::pipeline::NeighbourDetections;
 use crate::detect::{DetectConfig, DetectFilesError, detect_frame_files};
 use crate::geometry::conic::Ellipse;
 use crate::io::sidecar::{FramesSidecar, NeighbourEntry};
 use crate::io::{ReadError, ReadErrorKind};
+
+/// The detected ellipses of a frame's neighbour in the video.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NeighbourDetections {
+    /// Its time from the frame (s).
+    pub dt_s: f64,
+    /// Its detected ellipses (observed pixels).
+    pub ellipses: Vec<Ellipse>,
+}
 
 /// A pair is kept when the affine map predicts the neighbour's centre within this fraction of
 /// the detection's semi-minor axis: a neighbouring target is at least a diameter away.

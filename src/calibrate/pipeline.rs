@@ -18,6 +18,7 @@ use serde::Serialize;
 
 use super::checks::{projection_difference_rotated, projection_uncertainty};
 use super::matching::{MatchConfig, Matching, match_targets};
+pub use super::neighbours::NeighbourDetections;
 use super::refine::{Algorithm1, PairGeometry, RefineConfig, RefineError, algorithm1};
 use super::selection::{
     ModelChoice, RollingShutterSetup, Selected, SelectionConfig, SelectionStep, adjust_terms,
@@ -313,15 +314,6 @@ pub struct CalibrationInput<'a> {
     /// Per registered image (image-id order), the detections in its neighbours in the video
     /// (`±1/fps`); empty when the frames are not from a video (or have no neighbours).
     pub neighbours: &'a [Vec<NeighbourDetections>],
-}
-
-/// The detected ellipses of a frame's neighbour in the video.
-#[derive(Clone, Debug, PartialEq)]
-pub struct NeighbourDetections {
-    /// Its time from the frame (s).
-    pub dt_s: f64,
-    /// Its detected ellipses (observed pixels).
-    pub ellipses: Vec<Ellipse>,
 }
 
 /// A frame's detections linked to those of its neighbours: per neighbour, its time offset and,

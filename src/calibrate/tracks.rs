@@ -37,8 +37,9 @@ use nalgebra::{Point3, Vector2};
 use rayon::prelude::*;
 use serde::Serialize;
 
+use super::eccentricity::EccentricityConfig;
 use super::eccentricity::eccentricity_bound;
-use super::matching::{MatchConfig, PairIndex, Track, TrackView, corrections, observations_of};
+use super::track::{PairIndex, Track, TrackView, corrections, observations_of};
 use super::views::{FrameCamera, TargetObservation};
 use crate::geometry::triangulation::{depth, reprojection_rms, triangulate};
 use crate::robust::{CHI2_MEDIAN_2DOF, SQRT_CHI2_999_2DOF, lower_median};
@@ -124,7 +125,7 @@ struct Context<'a> {
     cameras: &'a [FrameCamera],
     observations: &'a [Vec<TargetObservation>],
     pairs: &'a PairIndex<'a>,
-    config: &'a MatchConfig,
+    correction: Option<&'a EccentricityConfig>,
     gate: f64,
     size: (f64, f64),
 }
@@ -269,7 +270,7 @@ impl Context<'_> {
         if !fit_all(&views, &point) {
             return None;
         }
-        if self.config.correct_centres {
+        if let Some(eccentricity) = self.correction {
             let all = vec![true; views.len()];
             let c = corrections(
                 &views,
@@ -278,7 +279,7 @@ impl Context<'_> {
                 self.pairs,
                 &all,
                 &point,
-                &self.config.eccentricity,
+                eccentricity,
             );
             for (v, c) in views.iter_mut().zip(c) {
                 v.set_correction(c);
@@ -587,6 +588,8 @@ const UNAMBIGUOUS_FRACTION: f64 = 0.25;
 /// One target, one track (module docs): merges, then grows and merges again until nothing is
 /// claimed. Returns the tracks (a
 /// merged track in place of its first part, the others in their order) and what changed.
+/// `correction` is Algorithm 3's configuration when the centres are corrected
+/// ([`super::matching::MatchConfig::correction`]).
 #[must_use]
 pub fn consolidate(
     tracks: Vec<Track>,
@@ -594,7 +597,7 @@ pub fn consolidate(
     observations: &[Vec<TargetObservation>],
     pairs: &PairIndex<'_>,
     image_size: (u32, u32),
-    config: &MatchConfig,
+    correction: Option<&EccentricityConfig>,
 ) -> (Vec<Track>, Consolidation) {
     let Some(sigma) = target_sigma(&tracks, cameras) else {
         return (tracks, Consolidation::default());
@@ -604,7 +607,7 @@ pub fn consolidate(
         cameras,
         observations,
         pairs,
-        config,
+        correction,
         gate: gate_px,
         size: (f64::from(image_size.0), f64::from(image_size.1)),
     };
@@ -635,6 +638,7 @@ pub fn consolidate(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calibrate::matching::MatchConfig;
     use crate::calibrate::views::observations;
     use crate::camera::Intrinsics;
     use crate::geometry::Rigid3;
@@ -781,7 +785,14 @@ mod tests {
         }
         let pairs = PairIndex::new(&[]);
         let config = MatchConfig::default();
-        let (out, c) = consolidate(input, &cameras, &obs, &pairs, (640, 480), &config);
+        let (out, c) = consolidate(
+            input,
+            &cameras,
+            &obs,
+            &pairs,
+            (640, 480),
+            config.correction(),
+        );
         assert_eq!(out.len(), truth.len(), "{c:?}");
         for t in &out {
             let mut views: Vec<(usize, usize)> = t.views.iter().map(|v| (v.frame, v.obs)).collect();
@@ -813,7 +824,7 @@ mod tests {
             &obs,
             &pairs,
             (640, 480),
-            &MatchConfig::default(),
+            MatchConfig::default().correction(),
         );
         assert_eq!(c.merged, 0);
         let sets: Vec<Vec<(usize, usize)>> = out
@@ -897,7 +908,14 @@ mod tests {
             .map(|v| (project(&cameras[v.frame], &x).unwrap() - v.best_centre()).norm())
             .fold(0.0, f64::max);
         assert!(worst > ctx_gate, "worst {worst} px, gate {ctx_gate} px");
-        let (out, c) = consolidate(input, &cameras, &obs, &pairs, (640, 480), &config);
+        let (out, c) = consolidate(
+            input,
+            &cameras,
+            &obs,
+            &pairs,
+            (640, 480),
+            config.correction(),
+        );
         assert_eq!(out.len(), truth.len(), "{c:?}");
         for t in &out {
             let mut v: Vec<(usize, usize)> = t.views.iter().map(|v| (v.frame, v.obs)).collect();
@@ -928,7 +946,7 @@ mod tests {
             &obs,
             &pairs,
             (640, 480),
-            &MatchConfig::default(),
+            MatchConfig::default().correction(),
         );
         assert_eq!(out.len(), truth.len(), "{c:?}");
         let dot7 = out

@@ -16,7 +16,23 @@ use nalgebra::Vector3;
 use serde::Serialize;
 
 use super::network::PipeSegment;
-use super::pipe::Region;
+
+/// A region of interest: points within `radius` of `centre` (in the measured frame).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Region {
+    /// Centre.
+    pub centre: Vector3<f64>,
+    /// Radius.
+    pub radius: f64,
+}
+
+impl Region {
+    /// Whether `p` lies in the region.
+    #[must_use]
+    pub fn contains(&self, p: &Vector3<f64>) -> bool {
+        (p - self.centre).norm() <= self.radius
+    }
+}
 
 /// A frame's optical axis in the measured frame: its camera centre and unit viewing
 /// direction.

@@ -6,6 +6,7 @@
 
 use nalgebra::Vector3;
 
+pub use super::choice::Region;
 use super::choice::{Choice, View, pipe_of_interest};
 use super::cloud::Cloud;
 use super::cylinder::{Cylinder, CylinderConfig, CylinderError, CylinderFit, fit_cylinder_among};
@@ -59,23 +60,6 @@ impl Scaling {
                 ..
             })
         )
-    }
-}
-
-/// A region of interest: points within `radius` of `centre` (in the measured frame).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Region {
-    /// Centre.
-    pub centre: Vector3<f64>,
-    /// Radius.
-    pub radius: f64,
-}
-
-impl Region {
-    /// Whether `p` lies in the region.
-    #[must_use]
-    pub fn contains(&self, p: &Vector3<f64>) -> bool {
-        (p - self.centre).norm() <= self.radius
     }
 }
 

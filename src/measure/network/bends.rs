@@ -6,8 +6,21 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use rayon::prelude::*;
 
-use super::ends::EndPoint;
 use crate::robust::upper_median;
+
+/// A cloud point near a segment's end, in the end's frame ([`super::ends`] gathers them,
+/// the bends and the faces read them).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct EndPoint {
+    /// Axial offset beyond the end (m; negative before it).
+    pub axial: f64,
+    /// Residual from the straight pipe's surface (m; positive outside).
+    pub off_surface: f64,
+    /// The radial unit vector in the cross-section basis.
+    pub radial: [f64; 2],
+    /// |normal · axis|: 0 for a normal radial to the pipe, 1 for one along its axis.
+    pub along_axis: f64,
+}
 
 /// How far beyond the end an elbow's surface is looked for before its tangent is sought (m):
 /// within 5 cm past its tangent the surface of a long-radius 2-inch elbow leaves the straight
@@ -45,10 +58,12 @@ impl Evidence {
         let cos30 = 30f64.to_radians().cos();
         let mut surface: Vec<[f64; 4]> = pts
             .iter()
-            .filter(|p| p.1.abs() <= 0.015 && p.3 <= (1.0 - cos30 * cos30).sqrt())
+            .filter(|p| {
+                p.off_surface.abs() <= 0.015 && p.along_axis <= (1.0 - cos30 * cos30).sqrt()
+            })
             .map(|p| {
-                let rho = radius + p.1;
-                [p.0, p.1, p.2[0] * rho, p.2[1] * rho]
+                let rho = radius + p.off_surface;
+                [p.axial, p.off_surface, p.radial[0] * rho, p.radial[1] * rho]
             })
             .collect();
         let mut straight: Vec<f64> = surface
@@ -285,8 +300,12 @@ mod tests {
         let b = Vector3::z().cross(&v);
         let end_point = |q: Vector3<f64>, n: Vector3<f64>| -> Option<EndPoint> {
             let rho = q.xy().norm();
-            (q.z <= 0.1 && rho >= 0.5 * r && rho <= r + 0.1)
-                .then(|| (q.z, rho - r, [q.x / rho, q.y / rho], n.z.abs()))
+            (q.z <= 0.1 && rho >= 0.5 * r && rho <= r + 0.1).then(|| EndPoint {
+                axial: q.z,
+                off_surface: rho - r,
+                radial: [q.x / rho, q.y / rho],
+                along_axis: n.z.abs(),
+            })
         };
         let ring = |psi: f64, m: Vector3<f64>| m * psi.cos() + b * psi.sin();
         let mut straight = Vec::new();
@@ -344,7 +363,12 @@ mod tests {
                 } else {
                     0.0
                 };
-                pts.push((t, e, [psi.cos(), psi.sin()], tilt));
+                pts.push(EndPoint {
+                    axial: t,
+                    off_surface: e,
+                    radial: [psi.cos(), psi.sin()],
+                    along_axis: tilt,
+                });
             }
         }
         let found = bend_tangent(&pts, r, 0.15).expect("a reducer");

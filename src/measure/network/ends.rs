@@ -6,13 +6,9 @@ use rayon::prelude::*;
 
 use super::super::cloud::Cloud;
 use super::super::cylinder::filled_arc;
-use super::bends::bend_tangent;
+use super::bends::{EndPoint, bend_tangent};
 use super::segments::Piece;
 use crate::robust::upper_median;
-
-/// Points of an end's neighbourhood: (axial offset beyond the end, residual from the
-/// surface, radial unit vector in the cross-section basis, |normal · axis|).
-pub(super) type EndPoint = (f64, f64, [f64; 2], f64);
 
 /// The end `at` of the piece `p` (the other end `other`), refined on every point of the
 /// cloud near it:
@@ -70,7 +66,12 @@ pub(super) fn end_of(
             let rho = off.norm();
             let (n, _) = cloud.local_at(pos);
             let u = off / rho.max(f64::MIN_POSITIVE);
-            (t, rho - c.radius, [u.dot(&e1), u.dot(&e2)], n.dot(&d).abs())
+            EndPoint {
+                axial: t,
+                off_surface: rho - c.radius,
+                radial: [u.dot(&e1), u.dot(&e2)],
+                along_axis: n.dot(&d).abs(),
+            }
         })
         .collect();
     if let Some(t) = end_face(&pts, 0.08) {
@@ -81,7 +82,7 @@ pub(super) fn end_of(
     if let Some(t) = end_face(&pts, 0.1 + cut).filter(|&t| straight_up_to(&pts, t)) {
         return at + d * t;
     }
-    let near: Vec<EndPoint> = pts.iter().copied().filter(|p| p.0 <= 0.1).collect();
+    let near: Vec<EndPoint> = pts.iter().copied().filter(|p| p.axial <= 0.1).collect();
     if let Some(t) = bend_tangent(&near, c.radius, tail) {
         return at + d * t;
     }
@@ -97,7 +98,7 @@ pub(super) fn end_of(
 /// the flange's front is where the rim begins (the 5th percentile of their axial offsets).
 fn rim_start(pts: &[EndPoint]) -> Option<f64> {
     let rim = rim_points(pts, -0.01, 0.08, 15)?;
-    if filled_arc(rim.iter().map(|p| p.2[1].atan2(p.2[0]))) < 120f64.to_radians() {
+    if filled_arc(rim.iter().map(|p| p.radial[1].atan2(p.radial[0]))) < 120f64.to_radians() {
         return None;
     }
     Some(rim_front(&rim))
@@ -109,23 +110,29 @@ fn rim_start(pts: &[EndPoint]) -> Option<f64> {
 fn rim_points(pts: &[EndPoint], from: f64, to: f64, min_points: usize) -> Option<Vec<&EndPoint>> {
     let rim: Vec<&EndPoint> = pts
         .iter()
-        .filter(|p| p.0 >= from && p.0 <= to && p.1 > 0.004 && p.1 < 0.1 && p.3 <= 0.5)
+        .filter(|p| {
+            p.axial >= from
+                && p.axial <= to
+                && p.off_surface > 0.004
+                && p.off_surface < 0.1
+                && p.along_axis <= 0.5
+        })
         .collect();
     if rim.len() < min_points {
         return None;
     }
-    let mut e: Vec<f64> = rim.iter().map(|p| p.1).collect();
+    let mut e: Vec<f64> = rim.iter().map(|p| p.off_surface).collect();
     let radius = upper_median(&mut e);
     let rim: Vec<&EndPoint> = rim
         .into_iter()
-        .filter(|p| (p.1 - radius).abs() <= 0.003)
+        .filter(|p| (p.off_surface - radius).abs() <= 0.003)
         .collect();
     (rim.len() >= min_points).then_some(rim)
 }
 
 /// Where a rim begins along the axis: the 5th percentile of its points' axial offsets.
 fn rim_front(rim: &[&EndPoint]) -> f64 {
-    let mut t: Vec<f64> = rim.iter().map(|p| p.0).collect();
+    let mut t: Vec<f64> = rim.iter().map(|p| p.axial).collect();
     t.sort_by(f64::total_cmp);
     t[((t.len() - 1) as f64 * 0.05).round() as usize]
 }
@@ -139,19 +146,22 @@ fn end_face(pts: &[EndPoint], reach: f64) -> Option<f64> {
     let cos30 = 30f64.to_radians().cos();
     let mut face: Vec<&EndPoint> = pts
         .iter()
-        .filter(|p| (-0.01..=reach).contains(&p.0) && p.1 > 0.004 && p.3 >= cos30)
+        .filter(|p| {
+            (-0.01..=reach).contains(&p.axial) && p.off_surface > 0.004 && p.along_axis >= cos30
+        })
         .collect();
-    face.sort_by(|a, b| a.0.total_cmp(&b.0));
+    face.sort_by(|a, b| a.axial.total_cmp(&b.axial));
     let mut j = 0;
     for i in 0..face.len() {
-        while j < face.len() && face[j].0 <= face[i].0 + 0.01 {
+        while j < face.len() && face[j].axial <= face[i].axial + 0.01 {
             j += 1;
         }
         let layer = &face[i..j];
         if layer.len() >= 15
-            && filled_arc(layer.iter().map(|p| p.2[1].atan2(p.2[0]))) >= 120f64.to_radians()
+            && filled_arc(layer.iter().map(|p| p.radial[1].atan2(p.radial[0])))
+                >= 120f64.to_radians()
         {
-            return Some(layer[layer.len() / 2].0);
+            return Some(layer[layer.len() / 2].axial);
         }
     }
     None
@@ -164,8 +174,8 @@ fn straight_up_to(pts: &[EndPoint], face: f64) -> bool {
     let bins = (face / 0.01).ceil().max(0.0) as usize;
     let mut seen = vec![false; bins];
     for p in pts {
-        if p.0 >= 0.0 && p.0 < face && p.1.abs() <= 0.005 && p.3 <= 0.5 {
-            if let Some(b) = seen.get_mut((p.0 / 0.01) as usize) {
+        if p.axial >= 0.0 && p.axial < face && p.off_surface.abs() <= 0.005 && p.along_axis <= 0.5 {
+            if let Some(b) = seen.get_mut((p.axial / 0.01) as usize) {
                 *b = true;
             }
         }
@@ -181,6 +191,6 @@ fn straight_up_to(pts: &[EndPoint], face: f64) -> bool {
 /// off at scattered offsets, are no rim.
 fn flange_front(pts: &[EndPoint], face: f64) -> Option<f64> {
     let rim = rim_points(pts, -0.01, face - 0.002, 10)?;
-    let mut e: Vec<f64> = rim.iter().map(|p| p.1).collect();
+    let mut e: Vec<f64> = rim.iter().map(|p| p.off_surface).collect();
     (upper_median(&mut e) >= 0.01).then(|| rim_front(&rim))
 }
