@@ -20,10 +20,10 @@ use nalgebra::{DMatrix, Matrix3, Rotation3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
 
 use super::model::CameraModel;
-use super::problem::Problem;
-use super::solver::{
+use super::normal::{
     Dims, Incidence, Rec, cholesky_scratch, faer_par, linearise, pinned_indices, view,
 };
+use super::problem::Problem;
 use super::{AdjustError, Loss};
 use crate::geometry::pose::{Rigid3, skew};
 

@@ -26,7 +26,8 @@ use faer::dyn_stack::MemBuffer;
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::solver::{Dims, Incidence, MAX_LOCAL, Normal, cholesky_scratch, cholesky_solve, damped};
+use super::normal::{Dims, Incidence, Normal, cholesky_scratch, cholesky_solve, damped};
+use super::problem::MAX_LOCAL;
 
 /// Largest camera block: a pose and [`MAX_LOCAL`] per-camera values.
 const MAX_DC: usize = 6 + MAX_LOCAL;

@@ -18,6 +18,7 @@ mod bal;
 mod datum;
 mod elimination;
 mod model;
+mod normal;
 mod problem;
 mod solver;
 

@@ -9,6 +9,11 @@ use super::model::CameraModel;
 use crate::camera::rolling::{Motion, MotionOrder};
 use crate::geometry::pose::Rigid3;
 
+/// Most per-camera values a model may carry (a fourth-order rolling-shutter motion's 24):
+/// the linearisation's stack buffers are this long; [`Problem::validate`]
+/// refuses a model with more.
+pub(crate) const MAX_LOCAL: usize = crate::camera::rolling::MAX_VALUES;
+
 /// One image measurement of a point.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Observation {
@@ -121,11 +126,11 @@ impl<M: CameraModel> Problem<M> {
     pub fn validate(&self) -> Result<(), AdjustError> {
         let n_cam = self.cam_from_world.len();
         let invalid = |m: String| Err(AdjustError::Invalid(m));
-        if self.model.local_len() > super::solver::MAX_LOCAL {
+        if self.model.local_len() > MAX_LOCAL {
             return invalid(format!(
                 "the model has {} per-camera values, at most {} are supported",
                 self.model.local_len(),
-                super::solver::MAX_LOCAL
+                MAX_LOCAL
             ));
         }
         if self.local.len() != n_cam * self.model.local_len() {
