@@ -10,7 +10,7 @@ use nalgebra::Vector3;
 use pipemeasure::measure::{
     Cloud, CylinderConfig, NetworkConfig, Scaling, fit_cylinder, measure_pipe,
 };
-use pipemeasure::sim::sfm::gaussian;
+use pipemeasure::robust::standard_normal as gaussian;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

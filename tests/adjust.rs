@@ -12,8 +12,8 @@ use pipemeasure::adjust::{
 use pipemeasure::calibrate::jackknife::{JACKKNIFE_GROUPS, frame_jackknife};
 use pipemeasure::camera::Intrinsics;
 use pipemeasure::camera::rolling::MotionOrder;
+use pipemeasure::robust::standard_normal as gaussian;
 use pipemeasure::sim::devices::{P30, preset_camera};
-use pipemeasure::sim::sfm::gaussian;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

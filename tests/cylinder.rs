@@ -4,7 +4,7 @@
 
 use nalgebra::Vector3;
 use pipemeasure::measure::{Cloud, CylinderConfig, CylinderError, fit_all_cylinders, fit_cylinder};
-use pipemeasure::sim::sfm::gaussian;
+use pipemeasure::robust::standard_normal as gaussian;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

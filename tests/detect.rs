@@ -463,7 +463,8 @@ mod synthetic {
                         );
                     }
                 }
-                let v = s / (ss * ss) as f64 + noise * pipemeasure::sim::sfm::gaussian(&mut rng);
+                let v =
+                    s / (ss * ss) as f64 + noise * pipemeasure::robust::standard_normal(&mut rng);
                 data.push(v.round().clamp(0.0, 255.0) as u8);
             }
         }

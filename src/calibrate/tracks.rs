@@ -700,8 +700,8 @@ mod tests {
                     let c = conic_of_circle(&cam.k(), &cam.cam_from_world, x, &normal, 0.01)?;
                     let mut e = Ellipse::from_conic(&c)?;
                     let (du, dv) = shift(f, d);
-                    e.cx += du + 0.05 * crate::sim::sfm::gaussian(&mut rng);
-                    e.cy += dv + 0.05 * crate::sim::sfm::gaussian(&mut rng);
+                    e.cx += du + 0.05 * crate::robust::standard_normal(&mut rng);
+                    e.cy += dv + 0.05 * crate::robust::standard_normal(&mut rng);
                     (e.cx > 10.0 && e.cy > 10.0 && e.cx < 630.0 && e.cy < 470.0).then_some((d, e))
                 })
                 .collect();

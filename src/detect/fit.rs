@@ -346,7 +346,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    use crate::sim::sfm::gaussian;
+    use crate::robust::standard_normal as gaussian;
 
     #[test]
     fn orthogonal_distance_is_exact() {

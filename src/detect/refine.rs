@@ -403,7 +403,7 @@ mod tests {
     use rand::SeedableRng;
     use rand_chacha::ChaCha8Rng;
 
-    use crate::sim::sfm::gaussian;
+    use crate::robust::standard_normal as gaussian;
 
     /// The profiles `refine` would see on `e` (one normal per pixel of perimeter, every edge
     /// found), the points moved along their normals by noise of 0.05 px.

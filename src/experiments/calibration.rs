@@ -17,7 +17,7 @@ use crate::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput,
 use crate::camera::{Intrinsics, Term};
 use crate::geometry::conic::Ellipse;
 use crate::io::colmap::Reconstruction;
-use crate::sim::sfm::gaussian;
+use crate::robust::standard_normal as gaussian;
 use crate::sim::simulate::lab_geometry;
 use crate::sim::truth::Truth;
 

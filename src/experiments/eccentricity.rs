@@ -25,9 +25,9 @@ use crate::geometry::conic::{Ellipse, conic_of_circle};
 use crate::geometry::eccentricity::luhmann_eccentricity;
 use crate::geometry::pose::camera_centre;
 use crate::geometry::triangulation::{Observation, camera_matrix, triangulate};
+use crate::robust::standard_normal as gaussian;
 use crate::sim::devices::{P30, preset_camera};
 use crate::sim::lab::look_at;
-use crate::sim::sfm::gaussian;
 
 /// The scene of Fig. 7 and Fig. 8.
 #[derive(Clone, Debug, PartialEq, Serialize)]

@@ -25,8 +25,8 @@ use crate::calibrate::refine::{Algorithm1, RefineConfig, algorithm1};
 use crate::calibrate::views::{FrameCamera, TargetObservation, observations};
 use crate::geometry::conic::Ellipse;
 use crate::io::colmap::Reconstruction;
+use crate::robust::standard_normal as gaussian;
 use crate::sim::lab::LabConfig;
-use crate::sim::sfm::gaussian;
 use crate::sim::simulate::{SimulateOptions, lab_geometry};
 use crate::sim::truth::Truth;
 

@@ -41,6 +41,7 @@ use crate::io::ReadError;
 use crate::io::colmap::{ImageId, Reconstruction};
 use crate::io::tls::read_targets;
 use crate::profile::{ProfileError, load_device};
+use crate::robust::standard_normal as gaussian;
 
 /// Why the site could not be measured.
 #[derive(Debug, thiserror::Error)]
@@ -1418,14 +1419,6 @@ fn covariance_sampler(
         let z = nalgebra::DVector::from_fn(n, |k, _| scale[k] * gaussian(rng));
         &vectors * z
     })
-}
-
-/// A standard normal deviate (Box–Muller).
-fn gaussian(rng: &mut rand_chacha::ChaCha8Rng) -> f64 {
-    use rand::Rng;
-    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 /// The scale (or similarity) of `estimate` re-estimated on the same association from moved

@@ -497,7 +497,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 
-    use crate::sim::sfm::gaussian;
+    use crate::robust::standard_normal as gaussian;
 
     /// True F, points in both images, which are true correspondences.
     type Scene = (

@@ -10,6 +10,26 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+/// A standard normal deviate (Box–Muller, 1958): `√(−2 ln u₁) cos(2π u₂)` with `u₁` in
+/// `(0, 1)` (never 0, so the logarithm is finite) and `u₂` in `[0, 1)`. The one normal sampler
+/// of the crate: the simulator's noise, the site's pose Monte Carlo and the tests draw from it,
+/// so a seed gives the same deviates everywhere.
+pub fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
+    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
+    let u2: f64 = rng.random();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// Two independent standard normal deviates from one draw of [`standard_normal`]'s pair
+/// `(u₁, u₂)`: the cosine and the sine of the same angle.
+pub fn standard_normal_pair<R: Rng + ?Sized>(rng: &mut R) -> (f64, f64) {
+    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
+    let u2: f64 = rng.random();
+    let r = (-2.0 * u1.ln()).sqrt();
+    let (s, c) = (std::f64::consts::TAU * u2).sin_cos();
+    (r * c, r * s)
+}
+
 /// √χ²₀.₉₇₅ with 2 degrees of freedom (paper eq. 2): 2.7162.
 pub const SQRT_CHI2_975_2DOF: f64 = 2.716_203_1;
 /// √χ²₀.₉₉₉ with 2 degrees of freedom: 3.7169 (`χ² = −2 ln 0.001`).

@@ -24,12 +24,12 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::scene::Scene;
-use super::sfm::gaussian;
 use crate::camera::BrownCamera;
 use crate::geometry::Rigid3;
 use crate::geometry::triangulation::{Observation, triangulate};
 use crate::io::observations::{DenseObservations, DensePoint, PixelObservation};
 use crate::io::ply::PointCloud;
+use crate::robust::standard_normal as gaussian;
 
 /// Dense sampling options.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

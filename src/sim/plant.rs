@@ -29,8 +29,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use super::plant_builder::{Builder, draw_size};
-use super::sfm::gaussian;
 use crate::io::ply::PointCloud;
+use crate::robust::standard_normal as gaussian;
 
 /// ASME B36.10M / B36.19M nominal pipe sizes used by the simulator: (NPS, DN, outside
 /// diameter in mm).

@@ -22,7 +22,7 @@
 
 use image::{DynamicImage, RgbImage};
 use nalgebra::{Point3, Vector2, Vector3};
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -652,15 +652,6 @@ fn blur(img: &mut [f32], w: usize, h: usize, sigma: f64) {
     });
 }
 
-/// Two independent standard normal deviates (Box–Muller).
-fn gaussian_pair(rng: &mut ChaCha8Rng) -> (f64, f64) {
-    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
-    let u2: f64 = rng.random();
-    let r = (-2.0 * u1.ln()).sqrt();
-    let (s, c) = (std::f64::consts::TAU * u2).sin_cos();
-    (r * c, r * s)
-}
-
 /// Turns radiance into a frame: exposure (`gain` DN per unit radiance), vignetting, blur,
 /// per-channel signal-dependent and read noise (seeded by `(seed, frame, row)`), 8-bit
 /// quantisation and optional JPEG.
@@ -701,7 +692,7 @@ pub fn develop(
                 for p in px.iter_mut() {
                     let noisy = if sigma > 0.0 {
                         let z = spare.take().unwrap_or_else(|| {
-                            let (a, b) = gaussian_pair(&mut rng);
+                            let (a, b) = crate::robust::standard_normal_pair(&mut rng);
                             spare = Some(b);
                             a
                         });

@@ -28,6 +28,7 @@ use crate::io::colmap::{
     CameraId, ColmapCamera, ColmapModel, Image, ImageId, Point2D, Point3D, Point3dId,
     Reconstruction, TrackElement,
 };
+use crate::robust::standard_normal as gaussian;
 
 /// Options of the SfM stand-in.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -67,13 +68,6 @@ impl Default for SfmConfig {
             adjust: true,
         }
     }
-}
-
-/// A standard normal deviate (Box–Muller).
-pub fn gaussian(rng: &mut ChaCha8Rng) -> f64 {
-    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 /// A random similarity: scale in [e^−1.5, e^1.5], uniform rotation, translation within ±5.

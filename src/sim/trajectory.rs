@@ -249,9 +249,9 @@ fn qvec(q: &UnitQuaternion<f64>) -> [f64; 4] {
 fn random_unit(rng: &mut ChaCha8Rng) -> Vector3<f64> {
     loop {
         let v = Vector3::new(
-            super::sfm::gaussian(rng),
-            super::sfm::gaussian(rng),
-            super::sfm::gaussian(rng),
+            crate::robust::standard_normal(rng),
+            crate::robust::standard_normal(rng),
+            crate::robust::standard_normal(rng),
         );
         let n = v.norm();
         if n > 1e-6 {
