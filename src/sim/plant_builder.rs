@@ -7,7 +7,7 @@ use parry3d_f64::shape::{Compound, Cuboid, SharedShape};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use super::plant::{
+use super::plant_room::{
     Material, ObjectTruth, Part, PipeSegmentTruth, PlantRoom, PlantTruth, SIM_PIPE_SIZES,
 };
 use crate::geometry::solid;

@@ -19,8 +19,8 @@ use parry3d_f64::shape::SharedShape;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use super::plant::{Part, PlantRoom, SIM_PIPE_SIZES};
 use super::plant_builder::{Builder, PipeSize, draw_size, round_bounds};
+use super::plant_room::{Part, PlantRoom, SIM_PIPE_SIZES};
 
 /// Points on each end circle of a reducer's cone (its convex hull is the solid).
 const REDUCER_RIM_POINTS: usize = 64;

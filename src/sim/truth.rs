@@ -344,7 +344,7 @@ pub struct Truth {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct VideoTruth {
     /// The video options as given.
-    pub config: super::video::VideoConfig,
+    pub config: super::video_config::VideoConfig,
     /// Readout time used (s): the option, or the device preset's.
     pub readout_s: f64,
     /// Exposure time (s).
