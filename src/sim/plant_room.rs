@@ -1,7 +1,7 @@
 //! A simulated plant room's parts and their truth: the nominal pipe sizes it draws from,
 //! each straight segment's and object's truth, and the room itself (a parry3d compound with
 //! what each sub-shape is). [`super::plant`] and [`super::plant_process`] build rooms through
-//! [`super::plant_builder`]; the scanner in [`super::plant`] reads them.
+//! a shared builder; the scanner in [`super::plant`] reads them.
 
 use nalgebra::Vector3;
 use parry3d_f64::shape::Compound;
