@@ -364,7 +364,7 @@ fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> 
     );
     provenance.insert("sfm".into(), serde_json::json!(model));
     provenance.insert("iterations".into(), serde_json::json!(cal.iterations.len()));
-    provenance.insert("converged".into(), serde_json::json!(cal.converged));
+    provenance.insert("converged".into(), serde_json::json!(cal.converged()));
     if let Some(j) = &cal.frame_jackknife {
         // The σ above are the adjustment's times √variance_inflation (the frames' scatter).
         provenance.insert("frame_jackknife".into(), serde_json::json!(j));
@@ -554,8 +554,8 @@ fn write_report(
     md += &format!(
         "The loop ran {} iteration(s) and stopped because {}{}.\n\n",
         cal.iterations.len(),
-        cal.stop_reason,
-        if cal.converged {
+        cal.stop_reason(),
+        if cal.converged() {
             ""
         } else {
             " (not converged)"
@@ -871,14 +871,15 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     // they moved into place, the profile last (a failure before leaves nothing new behind).
     let report_dir = args.report.as_deref().map(StagedDir::new).transpose()?;
     if let (Some(staged), Some(dir)) = (&report_dir, &args.report) {
+        let stop_reason = cal.stop_reason();
         let report = ReportJson {
             schema: "pipemeasure.calibration-report/1",
             device: &args.device,
             profile: &profile,
             selection: &cal.selection,
             iterations: &cal.iterations,
-            converged: cal.converged,
-            stop_reason: &cal.stop_reason,
+            converged: cal.converged(),
+            stop_reason: &stop_reason,
             term_alternation: cal.term_alternation.as_ref(),
             adjusted_frames: cal
                 .adjusted_frames

@@ -195,7 +195,7 @@ fn score(model: ShutterModel, cal: &Calibration, truth: &Truth, seconds: f64) ->
             .rolling_shutter
             .as_ref()
             .map(|r| (r.readout_s, r.readout_std_s)),
-        converged: cal.converged,
+        converged: cal.converged(),
         seconds,
     }
 }

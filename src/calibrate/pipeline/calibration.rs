@@ -143,11 +143,8 @@ pub struct Calibration {
     pub radial_base: Vec<(f64, f64)>,
     /// The loop's iterations.
     pub iterations: Vec<LoopRecord>,
-    /// Whether the loop converged: the matches stopped changing, or the camera stopped moving
-    /// (by less than [`super::CalibrateConfig::camera_stable_ratio`] of its projection σ).
-    pub converged: bool,
-    /// Why the loop stopped, in words.
-    pub stop_reason: String,
+    /// Why the loop stopped ([`Calibration::converged`], [`Calibration::stop_reason`]).
+    pub termination: Termination,
     /// The selection's alternation between two term sets, when the loop had to settle one.
     pub term_alternation: Option<TermAlternation>,
     /// The rolling-shutter model, when the selection kept it.
@@ -163,6 +160,152 @@ pub struct Calibration {
     /// The jackknife over the frames that checked the covariance, when it ran (a video
     /// calibration whose neighbouring frames fixed the readout time; [`crate::calibrate::jackknife`]).
     pub frame_jackknife: Option<JackknifeCheck>,
+}
+
+impl Calibration {
+    /// Whether the loop converged: the matches stopped changing, or the camera stopped moving
+    /// (by less than [`super::CalibrateConfig::camera_stable_ratio`] of its projection σ).
+    #[must_use]
+    pub fn converged(&self) -> bool {
+        self.termination.converged()
+    }
+
+    /// Why the loop stopped, in words.
+    #[must_use]
+    pub fn stop_reason(&self) -> String {
+        self.termination.to_string()
+    }
+}
+
+/// How the calibration loop ended.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Termination {
+    /// The matches did not change between two iterations: converged.
+    MatchesStable {
+        /// The iteration that found them unchanged.
+        iteration: usize,
+        /// Matched targets.
+        targets: usize,
+        /// Their views.
+        views: usize,
+    },
+    /// The matches came back to an earlier iteration's: they alternate (a view or two at the
+    /// gate); the last adjustment is reported.
+    MatchesAlternate {
+        /// The iteration that found them again.
+        iteration: usize,
+        /// Matched targets.
+        targets: usize,
+        /// Their views.
+        views: usize,
+    },
+    /// The matches changed, but the camera moved by less than
+    /// [`super::CalibrateConfig::camera_stable_ratio`] of its projection σ: converged.
+    CameraSettled {
+        /// The iteration.
+        iteration: usize,
+        /// Matched targets.
+        targets: usize,
+        /// Their views.
+        views: usize,
+        /// The largest move of the camera's projections over the frame (px).
+        moved_px: f64,
+        /// That move over the worst projection σ.
+        ratio: f64,
+        /// The ratio below which the camera counts as settled.
+        threshold: f64,
+    },
+    /// The iterations ran out while the matches still changed; the last adjustment is
+    /// reported.
+    IterationCap {
+        /// The cap ([`super::CalibrateConfig::max_iterations`]).
+        iterations: usize,
+        /// The least and largest move of the camera per iteration, over its projection σ.
+        camera_moves: Option<(f64, f64)>,
+    },
+    /// An iteration's adjustment could not run; the previous iteration's is reported.
+    AdjustmentFailed {
+        /// The iteration.
+        iteration: usize,
+        /// Why, in words.
+        cause: String,
+    },
+    /// An iteration's σ0 exceeded [`super::DIVERGENCE_FACTOR`] × the previous adjustment's;
+    /// the previous one is reported.
+    Diverged {
+        /// The iteration.
+        iteration: usize,
+        /// The previous adjustment's σ0 (px).
+        sigma0_before: f64,
+        /// This iteration's σ0 (px).
+        sigma0_after: f64,
+        /// Targets matched in this iteration.
+        targets: usize,
+    },
+}
+
+impl Termination {
+    /// Whether the loop converged (the matches or the camera settled).
+    #[must_use]
+    pub fn converged(&self) -> bool {
+        matches!(
+            self,
+            Termination::MatchesStable { .. } | Termination::CameraSettled { .. }
+        )
+    }
+}
+
+impl std::fmt::Display for Termination {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Termination::MatchesStable { targets, views, .. } => write!(
+                f,
+                "the matches did not change ({targets} targets, {views} views)"
+            ),
+            Termination::MatchesAlternate { targets, views, .. } => write!(
+                f,
+                "the matches returned to an earlier iteration's ({targets} targets, {views} views): they alternate"
+            ),
+            Termination::CameraSettled {
+                targets,
+                views,
+                moved_px,
+                ratio,
+                threshold,
+                ..
+            } => write!(
+                f,
+                "the matches changed ({targets} targets, {views} views) but the camera moved by {moved_px:.4} px at most over the frame, {ratio:.3} × its projection σ (below {threshold})"
+            ),
+            Termination::IterationCap {
+                iterations,
+                camera_moves,
+            } => {
+                write!(f, "the matches still changed after {iterations} iterations")?;
+                if let Some((lo, hi)) = camera_moves {
+                    write!(
+                        f,
+                        " (the camera moved by {lo:.2}–{hi:.2} × its projection σ per iteration)"
+                    )?;
+                }
+                Ok(())
+            }
+            Termination::AdjustmentFailed { iteration, cause } => write!(
+                f,
+                "iteration {iteration} failed ({cause}); the previous iteration's adjustment is reported"
+            ),
+            Termination::Diverged {
+                iteration,
+                sigma0_before,
+                sigma0_after,
+                targets,
+            } => write!(
+                f,
+                "iteration {iteration} diverged: σ0 {sigma0_before:.4} → {sigma0_after:.4} px with {targets} targets matched (more than {} × the last adjustment's); the previous iteration's adjustment is reported",
+                super::DIVERGENCE_FACTOR
+            ),
+        }
+    }
 }
 
 /// What the jackknife over the frames ([`crate::calibrate::jackknife`]) found and did.
@@ -226,7 +369,7 @@ pub(super) fn finish(
     cameras: &[FrameCamera],
     a1: &Algorithm1,
     iterations: Vec<LoopRecord>,
-    (converged, stop_reason, term_alternation): (bool, String, Option<TermAlternation>),
+    (termination, term_alternation): (Termination, Option<TermAlternation>),
     feature_adjustment: Option<AdjustSummary>,
     mut warnings: Vec<String>,
     initial: Intrinsics,
@@ -286,8 +429,7 @@ pub(super) fn finish(
         selection: selected.steps.clone(),
         radial_base: selected.radial_base.clone(),
         iterations,
-        converged,
-        stop_reason,
+        termination,
         term_alternation,
         rolling_shutter,
         feature_adjustment,

@@ -14,12 +14,13 @@
 //!    (capped, logged).
 
 mod calibration;
+mod iterate;
 mod problems;
 
 pub use calibration::{
     Calibration, CalibrationObservation, DETECTION_NOISE_PX, JackknifeCheck, LoopRecord,
     MAX_COVARIANCE_UNKNOWNS, RollingShutterEstimate, SIGMA0_OVER_DETECTION_WARNING,
-    TermAlternation,
+    TermAlternation, Termination,
 };
 pub(crate) use problems::adjust_tracks_free_network;
 pub use problems::{
@@ -27,22 +28,21 @@ pub use problems::{
 };
 
 use super::checks::{projection_difference_rotated, projection_uncertainty};
-use super::matching::{MatchConfig, Matching, match_targets};
+use super::matching::{MatchConfig, Matching};
 pub use super::neighbours::NeighbourDetections;
-use super::refine::{PairGeometry, RefineConfig, RefineError, algorithm1};
-use super::selection::{
-    ModelChoice, RollingShutterSetup, Selected, SelectionConfig, adjust_terms,
-    estimate_readout_time, select_terms,
-};
-use super::views::{FrameCamera, TargetObservation, observations};
-use crate::adjust::{AdjustConfig, AdjustError, BrownModel, Problem, free_network_datum};
+use super::refine::{Algorithm1, PairGeometry, RefineConfig, RefineError, algorithm1};
+use super::selection::{ModelChoice, RollingShutterSetup, Selected, SelectionConfig, adjust_terms};
+use super::views::FrameCamera;
+use crate::adjust::{AdjustConfig, AdjustError, AdjustSummary, BrownModel, Problem};
+use crate::camera::Intrinsics;
 use crate::geometry::conic::Ellipse;
 use crate::geometry::epipolar::fundamental_from_cameras;
 use crate::io::colmap::Reconstruction;
 use calibration::{
     check_by_jackknife, finish, intrinsic_covariance, intrinsics_of, residual_warning,
 };
-use problems::{TargetProblem, neighbour_links, target_problem};
+use iterate::{Loop, LoopInput};
+use problems::neighbour_links;
 
 /// How to calibrate.
 #[derive(Clone, Debug)]
@@ -176,6 +176,92 @@ pub fn calibrate(
     config: &CalibrateConfig,
     log: &dyn Fn(&str),
 ) -> Result<Calibration, CalibrateError> {
+    check_input(input, config)?;
+    let links = neighbour_links(input);
+    let has_neighbours = links.iter().any(|l| !l.is_empty());
+    let (config, readout_nominal) =
+        with_rolling_shutter(config, input.image_size, has_neighbours, log);
+    let config = &config;
+    let estimate_readout = config.rolling_shutter.is_some_and(|r| !r.hold) && has_neighbours;
+    if !input.neighbours.is_empty() {
+        let linked: usize = links
+            .iter()
+            .flatten()
+            .map(|(_, l)| l.iter().flatten().count())
+            .sum();
+        let total: usize = input.neighbours.iter().flatten().count();
+        log(&format!(
+            "rolling shutter: {total} neighbour frames in the video, {linked} of their detections linked to the frames'"
+        ));
+    }
+    let start = start_from_features(input, config, log)?;
+    let frame_interval_s = input
+        .neighbours
+        .iter()
+        .flatten()
+        .map(|n| n.dt_s.abs())
+        .fold(0.0, f64::max);
+    let mut run = Loop::new(
+        LoopInput {
+            input,
+            config,
+            links: &links,
+            a1: &start.a1,
+            estimate_readout,
+            frame_interval_s,
+            log,
+        },
+        start.cameras,
+        start.pairs,
+    );
+    let termination = run.run()?;
+    let Loop {
+        cameras,
+        iterations,
+        last,
+        alternation,
+        warnings,
+        ..
+    } = run;
+    let Some((mut selected, frames)) = last else {
+        return Err(CalibrateError::Input("no iteration ran".into()));
+    };
+    let frame_jackknife = check_by_jackknife(&mut selected, input.image_size, &config.adjust, log);
+    let mut cal = finish(
+        selected,
+        &frames,
+        &cameras,
+        &start.a1,
+        iterations,
+        (termination, alternation),
+        start.feature_adjustment,
+        warnings,
+        start.initial,
+        frame_jackknife,
+    )?;
+    if let Some(r) = cal.rolling_shutter.as_mut() {
+        r.determined = r.estimated || !readout_nominal;
+        if !r.determined {
+            let msg = format!(
+                "the rolling-shutter model was kept with the readout time held at a nominal {:.0} ms: the camera is corrected for the frames' motions, but the readout time is not determined and is left out of the profile",
+                1e3 * r.readout_s
+            );
+            log(&msg);
+            cal.warnings.push(msg);
+        }
+    }
+    if let Some(msg) = residual_warning(&cal, has_neighbours) {
+        log(&msg);
+        cal.warnings.push(msg);
+    }
+    Ok(cal)
+}
+
+/// The input's frames, detections and neighbours agree, and there are enough frames.
+fn check_input(
+    input: &CalibrationInput<'_>,
+    config: &CalibrateConfig,
+) -> Result<(), CalibrateError> {
     let n_frames = input.model.images.len();
     if n_frames < config.min_frames {
         return Err(CalibrateError::TooFew {
@@ -196,8 +282,18 @@ pub fn calibrate(
             input.neighbours.len()
         )));
     }
-    let links = neighbour_links(input);
-    let has_neighbours = links.iter().any(|l| !l.is_empty());
+    Ok(())
+}
+
+/// The configuration with the term selection's rolling-shutter candidate set up for these
+/// frames, and whether its readout time is only a nominal one (no neighbours to time the
+/// motions, none given).
+fn with_rolling_shutter(
+    config: &CalibrateConfig,
+    image_size: (u32, u32),
+    has_neighbours: bool,
+    log: &dyn Fn(&str),
+) -> (CalibrateConfig, bool) {
     let mut config = config.clone();
     // Without neighbours one frame per instant shows only readout × rate: the readout time is
     // held (the user's, or the nominal one) and the motions serve the camera alone. The rate
@@ -209,7 +305,7 @@ pub fn calibrate(
         .is_some_and(|start| !start.hold && !has_neighbours);
     if let Some(start) = config.rolling_shutter {
         config.selection.rolling_shutter = Some(RollingShutterSetup {
-            height_px: f64::from(input.image_size.1),
+            height_px: f64::from(image_size.1),
             readout_s: start.readout_s,
             estimate_readout: false,
             timed: has_neighbours,
@@ -221,19 +317,26 @@ pub fn calibrate(
             ));
         }
     }
-    let config = &config;
-    let estimate_readout = config.rolling_shutter.is_some_and(|r| !r.hold) && has_neighbours;
-    if !input.neighbours.is_empty() {
-        let linked: usize = links
-            .iter()
-            .flatten()
-            .map(|(_, l)| l.iter().flatten().count())
-            .sum();
-        let total: usize = input.neighbours.iter().flatten().count();
-        log(&format!(
-            "rolling shutter: {total} neighbour frames in the video, {linked} of their detections linked to the frames'"
-        ));
-    }
+    (config, readout_nominal)
+}
+
+/// Where the loop starts: Algorithm 1 (steps 1–2) and, when configured, its step 4, the
+/// adjustment of the inlier feature tracks that gives the poses and a first camera.
+struct Start {
+    a1: Algorithm1,
+    /// Algorithm 1's camera, before any adjustment.
+    initial: Intrinsics,
+    cameras: Vec<FrameCamera>,
+    pairs: Vec<PairGeometry>,
+    feature_adjustment: Option<AdjustSummary>,
+}
+
+/// Steps 1–3 of the loop ([`Start`]).
+fn start_from_features(
+    input: &CalibrationInput<'_>,
+    config: &CalibrateConfig,
+    log: &dyn Fn(&str),
+) -> Result<Start, CalibrateError> {
     // Steps 1–2.
     let a1 = algorithm1(input.model, None, &config.refine)?;
     let initial = a1.frames[0].camera.intrinsics;
@@ -245,7 +348,6 @@ pub fn calibrate(
         a1.reprojection_sigma
     ));
     let mut cameras: Vec<FrameCamera> = a1.frames.iter().map(|f| f.camera).collect();
-    let mut warnings = Vec::new();
     // Step 3.
     let feature_adjustment = if config.feature_adjustment {
         let (summary, intrinsics, poses) = adjust_feature_tracks(
@@ -280,384 +382,13 @@ pub fn calibrate(
     if config.feature_adjustment {
         refresh_pairs(&mut pairs, &cameras);
     }
-
-    // The selection's settings: the rolling shutter is dropped from them when the neighbours
-    // cannot determine the readout time.
-    let mut selection = config.selection.clone();
-    let frame_interval_s = input
-        .neighbours
-        .iter()
-        .flatten()
-        .map(|n| n.dt_s.abs())
-        .fold(0.0, f64::max);
-    let mut previous: Option<Vec<Vec<(usize, usize)>>> = None;
-    let mut seen: Vec<Vec<Vec<(usize, usize)>>> = Vec::new();
-    let mut iterations = Vec::new();
-    let mut last: Option<(Selected, Vec<usize>)> = None;
-    let mut converged = false;
-    let mut stop_reason = String::new();
-    // The model of each iteration, and the one held once the selection alternated.
-    let mut term_history: Vec<ModelChoice> = Vec::new();
-    let mut held: Option<ModelChoice> = None;
-    let mut alternation: Option<TermAlternation> = None;
-    // After the first iteration, an adjustment that fails (singular normal equations on
-    // matches made with a camera that drifted) stops the loop with the last good adjustment,
-    // warned, instead of losing the whole calibration.
-    macro_rules! or_stop {
-        ($iteration:expr, $result:expr) => {
-            match $result {
-                Ok(v) => v,
-                Err(e) if last.is_some() => {
-                    stop_reason = format!(
-                        "iteration {} failed ({}); the previous iteration's adjustment is reported",
-                        $iteration,
-                        CalibrateError::from(e)
-                    );
-                    log(&stop_reason);
-                    warnings.push(stop_reason.clone());
-                    break;
-                }
-                Err(e) => return Err(e.into()),
-            }
-        };
-    }
-    for iteration in 1..=config.max_iterations {
-        // Step 4.
-        let obs: Vec<Vec<TargetObservation>> = cameras
-            .iter()
-            .zip(input.detections)
-            .enumerate()
-            .map(|(k, (cam, det))| observations(k, cam, det))
-            .collect();
-        // Step 5.
-        let m = match_targets(
-            &cameras,
-            &obs,
-            &pairs,
-            input.image_size,
-            a1.reprojection_sigma,
-            &config.matching,
-        );
-        let signature = match_signature(&m);
-        let changed = previous.as_ref() != Some(&signature);
-        let cycle = changed && seen.contains(&signature);
-        let views: usize = m.tracks.iter().map(|t| t.views.len()).sum();
-        let record = LoopRecord {
-            iteration,
-            tracks: m.tracks.len(),
-            views,
-            changed,
-            adjusted_targets: 0,
-            adjusted_observations: 0,
-            sigma0: f64::NAN,
-            terms: Vec::new(),
-            consolidation: m.consolidation,
-            not_round: m.not_round,
-            camera_change_px: None,
-            camera_change_ratio: None,
-            terms_held: false,
-        };
-        // Stop when the matches did not change, or came back to an earlier iteration's.
-        if !changed || cycle {
-            stop_reason = if changed {
-                format!(
-                    "the matches returned to an earlier iteration's ({} targets, {views} views): they alternate",
-                    m.tracks.len()
-                )
-            } else {
-                format!(
-                    "the matches did not change ({} targets, {views} views)",
-                    m.tracks.len()
-                )
-            };
-            log(&format!("iteration {iteration}: {stop_reason}: done"));
-            if changed {
-                warnings.push(format!(
-                    "iteration {iteration}: {stop_reason}; the last adjustment is reported"
-                ));
-            }
-            iterations.push(record);
-            converged = !changed;
-            break;
-        }
-        seen.push(signature.clone());
-        previous = Some(signature);
-        // Step 6.
-        let TargetProblem {
-            problem,
-            frames,
-            dropped_frames,
-            neighbour_observations,
-        } = or_stop!(
-            iteration,
-            target_problem(&m, &cameras, &obs, input, &links, config)
-        );
-        if !dropped_frames.is_empty() {
-            log(&format!(
-                "iteration {iteration}: {} frame(s) left out of the adjustment, fewer than {MIN_FRAME_OBSERVATIONS} target observations: {}",
-                dropped_frames.len(),
-                dropped_frames
-                    .iter()
-                    .map(|&k| a1.frames[k].name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ));
-        }
-        let reference = problem.points.clone();
-        let terms_held = held.is_some();
-        let mut selected = match &held {
-            Some(choice) => or_stop!(
-                iteration,
-                adjust_terms(&problem, choice, selection.rolling_shutter, &config.adjust)
-            ),
-            None => or_stop!(
-                iteration,
-                select_terms(&problem, &selection, &config.adjust, log)
-            ),
-        };
-        if held.is_none()
-            && let Some(settled) = settle_alternation(
-                iteration,
-                &selected,
-                &term_history,
-                &problem,
-                input.image_size,
-                config,
-            )
-            .unwrap_or_else(|e| {
-                log(&format!(
-                    "iteration {iteration}: the alternating models could not be compared ({e}); the selection's is kept"
-                ));
-                None
-            })
-        {
-            let (kept, record) = settled;
-            log(&format!(
-                "iteration {iteration}: the selection alternates between {} (BIC {:.1}) and {} (BIC {:.1}); {} kept for the rest of the loop (lower BIC); the two cameras differ by {:.4} px at most ({:.3} × the projection σ)",
-                record.sets[0],
-                record.bic[0],
-                record.sets[1],
-                record.bic[1],
-                record.kept,
-                record.camera_difference_px,
-                record.camera_difference_ratio
-            ));
-            if record.camera_difference_ratio > 1.0 {
-                warnings.push(format!(
-                    "the term selection is on the edge between {} and {}: the two cameras differ by {:.3} px ({:.2} × the reported projection σ); {} was kept (lower BIC)",
-                    record.sets[0],
-                    record.sets[1],
-                    record.camera_difference_px,
-                    record.camera_difference_ratio,
-                    record.kept
-                ));
-            }
-            held = Some(record.kept.clone());
-            alternation = Some(record);
-            selected = kept;
-        }
-        term_history.push(selected.choice());
-        if estimate_readout
-            && selected.rolling_shutter.is_some()
-            && !neighbour_observations.is_empty()
-        {
-            let held_ms = 1e3 * selected.problem.global[BrownModel::READOUT];
-            // The neighbours must tie the motions to time: a readout time outside the frame
-            // interval, neighbours weighted next to nothing (their residuals 100 × the
-            // frames'), or an adjustment that fails with them, leave the motions free, and
-            // their drift along u0 + p2 runs the loop away (BoofCV's real video). The rolling
-            // shutter is then left out for good.
-            let accepted = match estimate_readout_time(
-                selected,
-                &neighbour_observations,
-                &selection,
-                &config.adjust,
-                log,
-            ) {
-                Ok(e) => {
-                    let readout_s = e.problem.global[BrownModel::READOUT];
-                    let weight = e.neighbour_weight.unwrap_or(1.0);
-                    log(&format!(
-                        "iteration {iteration}: readout time from {} observations in the neighbouring video frames (weight {weight:.3} against the frames'): {:.2} ± {:.2} ms (held at {held_ms:.2} ms in the selection); σ0 {:.4} px",
-                        neighbour_observations.len(),
-                        1e3 * readout_s,
-                        1e3 * e.readout_std_s.unwrap_or(0.0),
-                        e.precision.sigma0
-                    ));
-                    if readout_s > 0.0
-                        && readout_s <= frame_interval_s
-                        && weight >= MIN_NEIGHBOUR_WEIGHT
-                    {
-                        Ok(e)
-                    } else {
-                        Err(format!(
-                            "{:.2} ms for frames {:.2} ms apart, their weight {weight:.4} against the frames'",
-                            1e3 * readout_s,
-                            1e3 * frame_interval_s
-                        ))
-                    }
-                }
-                Err(e) => Err(format!("the adjustment with them failed: {e}")),
-            };
-            selected = match accepted {
-                Ok(e) => e,
-                Err(why) => {
-                    let msg = format!(
-                        "iteration {iteration}: the neighbouring video frames do not determine the readout time ({why}): the rolling shutter is left out and the terms selected again"
-                    );
-                    log(&msg);
-                    warnings.push(msg);
-                    selection.rolling_shutter = None;
-                    held_choice_reset(&mut held);
-                    or_stop!(
-                        iteration,
-                        select_terms(&problem, &selection, &config.adjust, log)
-                    )
-                }
-            };
-        }
-        // A guard against a loop that runs away: when this iteration's matches fit several
-        // times worse than the last adjustment's, they were made with a camera or motions
-        // that had drifted (a rolling-shutter model whose motions the data did not fix, on
-        // BoofCV's real video: σ0 0.035 → 6.3 px, then singular). The last good adjustment
-        // is kept and reported.
-        if let Some((prev, _)) = &last
-            && selected.precision.sigma0 > DIVERGENCE_FACTOR * prev.precision.sigma0
-        {
-            stop_reason = format!(
-                "iteration {iteration} diverged: σ0 {:.4} → {:.4} px with {} targets matched (more than {DIVERGENCE_FACTOR} × the last adjustment's); the previous iteration's adjustment is reported",
-                prev.precision.sigma0,
-                selected.precision.sigma0,
-                m.tracks.len()
-            );
-            log(&stop_reason);
-            warnings.push(stop_reason.clone());
-            iterations.push(LoopRecord {
-                adjusted_targets: selected.problem.points.len(),
-                adjusted_observations: selected.precision.observations,
-                sigma0: selected.precision.sigma0,
-                terms: selected.terms.clone(),
-                terms_held,
-                ..record
-            });
-            break;
-        }
-        or_stop!(
-            iteration,
-            free_network_datum(&mut selected.problem, &reference)
-        );
-        let intrinsics = intrinsics_of(&selected.problem);
-        // How far the camera moved since the last iteration, against its own uncertainty.
-        let change = last.as_ref().map(|(prev, _)| {
-            let moved = projection_difference_rotated(
-                &intrinsics_of(&prev.problem),
-                &intrinsics,
-                input.image_size,
-            )
-            .map
-            .max;
-            let sigma = projection_uncertainty(
-                &intrinsics,
-                &intrinsic_covariance(&selected.precision),
-                input.image_size,
-            )
-            .max;
-            (moved, moved / sigma.max(f64::MIN_POSITIVE))
-        });
-        for cam in cameras.iter_mut() {
-            cam.intrinsics = intrinsics;
-        }
-        for (&frame, pose) in frames.iter().zip(&selected.problem.cam_from_world) {
-            cameras[frame].cam_from_world = *pose;
-        }
-        refresh_pairs(&mut pairs, &cameras);
-        log(&format!(
-            "iteration {iteration}: {} targets matched ({views} views; {} merged, {} views added by their points, {} not round in their plane), {} adjusted with {} observations; σ0 {:.4} px; terms {}{}",
-            m.tracks.len(),
-            m.consolidation.merged,
-            m.consolidation.grown,
-            m.not_round,
-            selected.problem.points.len(),
-            selected.precision.observations,
-            selected.precision.sigma0,
-            selected
-                .terms
-                .iter()
-                .map(|t| t.name())
-                .collect::<Vec<_>>()
-                .join(", "),
-            change.map_or(String::new(), |(px, ratio)| format!(
-                "; the camera moved by {px:.4} px at most ({ratio:.3} × its projection σ)"
-            ))
-        ));
-        iterations.push(LoopRecord {
-            adjusted_targets: selected.problem.points.len(),
-            adjusted_observations: selected.precision.observations,
-            sigma0: selected.precision.sigma0,
-            terms: selected.terms.clone(),
-            camera_change_px: change.map(|c| c.0),
-            camera_change_ratio: change.map(|c| c.1),
-            terms_held,
-            ..record
-        });
-        last = Some((selected, frames));
-        if let Some((px, ratio)) = change
-            && ratio < config.camera_stable_ratio
-        {
-            stop_reason = format!(
-                "the matches changed ({} targets, {views} views) but the camera moved by {px:.4} px at most over the frame, {ratio:.3} × its projection σ (below {})",
-                m.tracks.len(),
-                config.camera_stable_ratio
-            );
-            log(&format!("iteration {iteration}: {stop_reason}: done"));
-            converged = true;
-            break;
-        }
-    }
-    if !converged && stop_reason.is_empty() {
-        stop_reason = format!(
-            "the matches still changed after {} iterations{}",
-            config.max_iterations,
-            camera_moves(&iterations).map_or(String::new(), |(lo, hi)| format!(
-                " (the camera moved by {lo:.2}–{hi:.2} × its projection σ per iteration)"
-            ))
-        );
-        let msg = format!("{stop_reason}; the last adjustment is reported");
-        log(&msg);
-        warnings.push(msg);
-    }
-    let Some((mut selected, frames)) = last else {
-        return Err(CalibrateError::Input("no iteration ran".into()));
-    };
-    let frame_jackknife = check_by_jackknife(&mut selected, input.image_size, &config.adjust, log);
-    let mut cal = finish(
-        selected,
-        &frames,
-        &cameras,
-        &a1,
-        iterations,
-        (converged, stop_reason, alternation),
-        feature_adjustment,
-        warnings,
+    Ok(Start {
+        a1,
         initial,
-        frame_jackknife,
-    )?;
-    if let Some(r) = cal.rolling_shutter.as_mut() {
-        r.determined = r.estimated || !readout_nominal;
-        if !r.determined {
-            let msg = format!(
-                "the rolling-shutter model was kept with the readout time held at a nominal {:.0} ms: the camera is corrected for the frames' motions, but the readout time is not determined and is left out of the profile",
-                1e3 * r.readout_s
-            );
-            log(&msg);
-            cal.warnings.push(msg);
-        }
-    }
-    if let Some(msg) = residual_warning(&cal, has_neighbours) {
-        log(&msg);
-        cal.warnings.push(msg);
-    }
-    Ok(cal)
+        cameras,
+        pairs,
+        feature_adjustment,
+    })
 }
 
 /// Below this weight of the neighbouring video frames against the frames (their residuals
@@ -665,13 +396,6 @@ pub fn calibrate(
 /// simulated video labs weight them 0.002–0.02 (tremor over 1/fps); BoofCV's real video, where
 /// they did not fix the motions, below 5·10⁻⁵.
 pub const MIN_NEIGHBOUR_WEIGHT: f64 = 1e-4;
-
-/// A held model with a rolling shutter cannot be kept once the rolling shutter is left out.
-fn held_choice_reset(held: &mut Option<ModelChoice>) {
-    if held.as_ref().is_some_and(|c| c.rolling_shutter) {
-        *held = None;
-    }
-}
 
 /// An iteration whose σ0 exceeds this multiple of the previous adjustment's has diverged
 /// ([`calibrate`] stops and reports the previous one).
@@ -778,6 +502,7 @@ fn match_signature(m: &Matching) -> Vec<Vec<(usize, usize)>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::calibrate::selection::select_terms;
     use crate::camera::Term;
     use crate::experiments::calibration::truth_target_problem;
     use crate::sim::lab::LabConfig;
