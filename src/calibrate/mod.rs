@@ -5,6 +5,7 @@
 
 pub mod check_points;
 pub mod checks;
+pub mod device;
 pub mod eccentricity;
 pub mod jackknife;
 pub mod matching;
@@ -17,3 +18,9 @@ pub mod selection;
 pub mod track;
 pub mod tracks;
 pub mod views;
+
+pub use device::{CrossValidation, DeviceCalibration, DeviceConfig, calibrate_device};
+pub use pipeline::{
+    CalibrateConfig, CalibrateError, Calibration, CalibrationInput, ReadoutStart, Termination,
+    calibrate,
+};

@@ -3,38 +3,28 @@
 //! lab video's frames, written as a device profile; the adjusted network in the report (and as a
 //! COLMAP model), and its object-space accuracy against check points.
 
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use nalgebra::Vector2;
-use pipemeasure::adjust::correlation;
-use pipemeasure::calibrate::check_points::{CheckPointReport, check_points};
-use pipemeasure::calibrate::checks::{
-    DistortionCheck, ImageMap, check_distortion, projection_difference,
-    projection_difference_rotated, projection_uncertainty,
-};
+use pipemeasure::calibrate::check_points::check_points;
 use pipemeasure::calibrate::neighbours::detect_neighbours;
 use pipemeasure::calibrate::network::colmap_network;
 use pipemeasure::calibrate::pipeline::{
-    CalibrateConfig, Calibration, CalibrationInput, NeighbourDetections, ReadoutStart, calibrate,
+    CalibrateConfig, CalibrationInput, NeighbourDetections, ReadoutStart,
 };
-use pipemeasure::camera::Term;
+use pipemeasure::calibrate::{DeviceCalibration, DeviceConfig, calibrate_device};
 use pipemeasure::detect::DetectConfig;
-use pipemeasure::geometry::conic::Ellipse;
-use pipemeasure::geometry::pose::camera_centre;
-use pipemeasure::io::atomic::write_bytes_atomic;
 use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
 use pipemeasure::io::colmap::{
     ColmapOptions, ColmapProgress, ModelFormat, Reconstruction, run_colmap_sfm_with,
 };
 use pipemeasure::io::sidecar::FramesSidecar;
-use pipemeasure::profile::{
-    CALIBRATIONS_DIR, Correlation, ImageSize, PROFILE_SCHEMA, Profile, ReadoutTime, StdDev,
-    backup_path, validate_device_name,
+use pipemeasure::profile::CalibrationSource;
+use pipemeasure::profile::{CALIBRATIONS_DIR, Profile, backup_path, validate_device_name};
+use pipemeasure::report::calibration::{
+    CALIBRATION_REPORT_SCHEMA, CalibrationReport, intrinsics_table, write_calibration_report,
 };
-use pipemeasure::report::plots;
-use serde::Serialize;
+use pipemeasure::sim::truth::simulated_provenance;
 
 use super::matching::detect_named_frames;
 use super::{Globals, progress, usage, values};
@@ -286,369 +276,6 @@ fn check_frames(model: &Reconstruction, frames: &Path) -> Result<Vec<String>> {
     Ok(names)
 }
 
-#[derive(Serialize)]
-struct CrossValidation {
-    frames: [usize; 2],
-    /// The halves' projections apart, as they are (px).
-    max_px: f64,
-    rms_px: f64,
-    map: ImageMap,
-    /// After compensating the rotation between the halves' models (mrcal): what the data can
-    /// tell apart (px).
-    rotated_max_px: f64,
-    rotated_rms_px: f64,
-    rotation_deg: f64,
-    /// The RMS difference the halves' own σ predict, `sqrt(rms σ_a² + rms σ_b²)` (px).
-    predicted_rms_px: f64,
-    /// Observed over predicted; above 1 the σ are too small for these frames.
-    ratio: f64,
-    /// The factor the profile's σ (and covariance, squared) were multiplied by: the ratio when
-    /// above 1, else 1.
-    sigma_scaled_by: f64,
-}
-
-#[derive(Serialize)]
-struct ReportJson<'a> {
-    schema: &'static str,
-    device: &'a str,
-    profile: &'a Profile,
-    selection: &'a [pipemeasure::calibrate::selection::SelectionStep],
-    iterations: &'a [pipemeasure::calibrate::pipeline::LoopRecord],
-    converged: bool,
-    stop_reason: &'a str,
-    /// The selection's alternation between two term sets and how the loop settled it.
-    term_alternation: Option<&'a pipemeasure::calibrate::pipeline::TermAlternation>,
-    /// Frames (by name) in the final adjustment; the others saw too few targets.
-    adjusted_frames: Vec<&'a str>,
-    redundancy: usize,
-    feature_adjustment: Option<pipemeasure::adjust::AdjustSummary>,
-    adjustment: pipemeasure::adjust::AdjustSummary,
-    distortion_check: &'a DistortionCheck,
-    projection_uncertainty: &'a ImageMap,
-    cross_validation: Option<&'a CrossValidation>,
-    high_correlations: Vec<(String, String, f64)>,
-    warnings: &'a [String],
-    observations: &'a [pipemeasure::calibrate::pipeline::CalibrationObservation],
-    /// The adjusted targets and frames with their σ.
-    network: &'a pipemeasure::calibrate::network::Network,
-    /// The check points' comparison, when given.
-    check_points: Option<&'a CheckPointReport>,
-    /// The jackknife over the frames that checked (and widened) the covariance, when it ran.
-    frame_jackknife: Option<&'a pipemeasure::calibrate::pipeline::JackknifeCheck>,
-}
-
-fn profile_of(args: &Args, cal: &Calibration, size: (u32, u32), model: &str) -> Profile {
-    let mut std_dev = StdDev::default();
-    for t in Term::ALL {
-        std_dev.set(t, cal.std_dev[t.index()]);
-    }
-    let idx: Vec<usize> = cal.terms.iter().map(|t| t.index()).collect();
-    let all = correlation(&cal.covariance);
-    let matrix = idx
-        .iter()
-        .map(|&i| idx.iter().map(|&j| all[(i, j)]).collect())
-        .collect();
-    let mut provenance = BTreeMap::new();
-    provenance.insert(
-        "tool".into(),
-        serde_json::json!(format!("pipemeasure {}", env!("CARGO_PKG_VERSION"))),
-    );
-    provenance.insert("source".into(), serde_json::json!("calibrate"));
-    provenance.insert(
-        "command".into(),
-        serde_json::json!(std::env::args().collect::<Vec<_>>().join(" ")),
-    );
-    provenance.insert(
-        "frames".into(),
-        serde_json::json!(args.frames().display().to_string()),
-    );
-    provenance.insert("sfm".into(), serde_json::json!(model));
-    provenance.insert("iterations".into(), serde_json::json!(cal.iterations.len()));
-    provenance.insert("converged".into(), serde_json::json!(cal.converged()));
-    if let Some(j) = &cal.frame_jackknife {
-        // The σ above are the adjustment's times √variance_inflation (the frames' scatter).
-        provenance.insert("frame_jackknife".into(), serde_json::json!(j));
-    }
-    // Frames from `pipemeasure simulate lab` carry their truth next to them: say so.
-    let truth_path = args.frames().parent().map(|d| d.join("truth.json"));
-    if let Some(truth) = truth_path
-        .filter(|p| p.is_file())
-        .and_then(|p| pipemeasure::sim::truth::Truth::read(&p).ok())
-    {
-        provenance.insert(
-            "simulated".into(),
-            serde_json::json!({
-                "scene": truth.scene,
-                "device_preset": truth.camera.device,
-                "seed": truth.seed,
-                "simulate_command": truth.command,
-                "note": "calibrated from simulated frames, not a real phone: calibrate your own phone and replace this profile",
-            }),
-        );
-    }
-    Profile {
-        schema: PROFILE_SCHEMA.into(),
-        device: args.device.clone(),
-        image: ImageSize {
-            width: size.0,
-            height: size.1,
-        },
-        model: "brown".into(),
-        terms: cal.terms.clone(),
-        intrinsics: cal.intrinsics,
-        std_dev,
-        correlation: Correlation {
-            names: cal.terms.clone(),
-            matrix,
-        },
-        residual_rms_px: Some(cal.residual_rms_px),
-        sigma0: Some(cal.sigma0),
-        images: cal.frame_names.len(),
-        targets: cal.points.len(),
-        observations: cal.observations.len(),
-        // A readout time held at the nominal value (frames without neighbours) is no property
-        // of the device: left out, so a measurement does not take it for one.
-        rolling_shutter: cal
-            .rolling_shutter
-            .as_ref()
-            .filter(|r| r.determined)
-            .map(|r| ReadoutTime {
-                readout_s: r.readout_s,
-                readout_std_s: r.readout_std_s,
-                estimated: r.estimated,
-            }),
-        provenance,
-    }
-}
-
-fn high_correlations(profile: &Profile) -> Vec<(String, String, f64)> {
-    let n = profile.correlation.names.len();
-    let mut out = Vec::new();
-    for i in 0..n {
-        for j in 0..i {
-            let r = profile.correlation.matrix[i][j];
-            if r.abs() > 0.9 {
-                out.push((
-                    profile.correlation.names[j].name().to_string(),
-                    profile.correlation.names[i].name().to_string(),
-                    r,
-                ));
-            }
-        }
-    }
-    out
-}
-
-fn calibrate_model(
-    model: &Reconstruction,
-    (detections, neighbours): (&[Vec<Ellipse>], &[Vec<NeighbourDetections>]),
-    size: (u32, u32),
-    config: &CalibrateConfig,
-    log: &dyn Fn(&str),
-) -> Result<Calibration> {
-    let input = CalibrationInput {
-        model,
-        detections,
-        image_size: size,
-        neighbours,
-    };
-    Ok(calibrate(&input, config, log)?)
-}
-
-fn intrinsics_table(cal: &Calibration) -> String {
-    let mut s = String::from("| term | value | σ |\n| --- | ---: | ---: |\n");
-    for t in Term::ALL {
-        let v = cal.intrinsics.get(t);
-        let sd = cal.std_dev[t.index()];
-        if cal.terms.contains(&t) {
-            s += &format!("| {} | {v:.6e} | {sd:.2e} |\n", t.name());
-        } else {
-            s += &format!("| {} | {v} | fixed |\n", t.name());
-        }
-    }
-    s
-}
-
-fn write_report(
-    dir: &Path,
-    cal: &Calibration,
-    size: (u32, u32),
-    report: &ReportJson<'_>,
-) -> Result<()> {
-    // Radial residuals before (c, u0, v0 only) and after (the chosen model).
-    let (u0, v0) = (cal.intrinsics.u0, cal.intrinsics.v0);
-    let after: Vec<(f64, f64)> = cal
-        .observations
-        .iter()
-        .map(|o| {
-            let d = Vector2::new(o.uv[0] - u0, o.uv[1] - v0);
-            let r = d.norm().max(1e-12);
-            (r, (o.residual[0] * d.x + o.residual[1] * d.y) / r)
-        })
-        .collect();
-    let chosen = format!(
-        "chosen model ({})",
-        cal.terms
-            .iter()
-            .map(|t| t.name())
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
-    plots::radial_residuals(
-        &dir.join("radial_residuals.svg"),
-        &[("c, u0, v0 only", &cal.radial_base), (&chosen, &after)],
-    )?;
-    let vectors: Vec<(Vector2<f64>, Vector2<f64>)> = cal
-        .observations
-        .iter()
-        .map(|o| {
-            (
-                Vector2::new(o.uv[0], o.uv[1]),
-                Vector2::new(o.residual[0], o.residual[1]),
-            )
-        })
-        .collect();
-    let rms = cal.residual_rms_px.max(1e-6);
-    let scale = (0.02 * f64::from(size.0) / (3.0 * rms)).round().max(1.0);
-    plots::residual_vectors(&dir.join("residual_vectors.svg"), size, &vectors, scale)?;
-    let centres: Vec<_> = cal.cam_from_world.iter().map(camera_centre).collect();
-    let dirs: Vec<_> = cal
-        .cam_from_world
-        .iter()
-        .map(|p| p.rotation.inverse() * nalgebra::Vector3::z())
-        .collect();
-    plots::camera_network(
-        &dir.join("camera_network.svg"),
-        &centres,
-        &dirs,
-        &cal.points,
-    )?;
-    plots::image_map(
-        &dir.join("projection_uncertainty.svg"),
-        size,
-        &report.projection_uncertainty.values,
-        "projection σ of a ray",
-        "px",
-    )?;
-    if let Some(cv) = report.cross_validation {
-        plots::image_map(
-            &dir.join("cross_validation.svg"),
-            size,
-            &cv.map.values,
-            "difference of the two halves' projections",
-            "px",
-        )?;
-    }
-    let json = serde_json::to_string_pretty(report)?;
-    write_bytes_atomic(&dir.join("report.json"), json.as_bytes())?;
-    let mut md = format!(
-        "# Calibration of {}\n\n{} frames, {} targets, {} observations; σ0 {:.4} px, residual RMS {:.4} px, redundancy {}.\n\n",
-        report.device,
-        cal.frame_names.len(),
-        cal.points.len(),
-        cal.observations.len(),
-        cal.sigma0,
-        cal.residual_rms_px,
-        cal.redundancy
-    );
-    md += &format!(
-        "The loop ran {} iteration(s) and stopped because {}{}.\n\n",
-        cal.iterations.len(),
-        cal.stop_reason(),
-        if cal.converged() {
-            ""
-        } else {
-            " (not converged)"
-        }
-    );
-    if let Some(a) = &cal.term_alternation {
-        md += &format!(
-            "At iteration {} the term selection alternated between {} (BIC {:.1}) and {} (BIC {:.1}); {} was kept (lower BIC) for the rest of the loop. The two cameras differ by {:.4} px at most over the frame ({:.2} × the projection σ).\n\n",
-            a.iteration,
-            a.sets[0],
-            a.bic[0],
-            a.sets[1],
-            a.bic[1],
-            a.kept,
-            a.camera_difference_px,
-            a.camera_difference_ratio
-        );
-    }
-    if cal.adjusted_frames.len() < cal.frame_names.len() {
-        md += &format!(
-            "{} of the {} frames saw too few matched targets to enter the adjustment.\n\n",
-            cal.frame_names.len() - cal.adjusted_frames.len(),
-            cal.frame_names.len()
-        );
-    }
-    md += &intrinsics_table(cal);
-    md += "\nCorrelations above 0.9 (flagged):\n\n";
-    let high = &report.high_correlations;
-    if high.is_empty() {
-        md += "none\n";
-    }
-    for (a, b, r) in high {
-        md += &format!("- **{a} / {b}: {r:.3}**\n");
-    }
-    md += "\nTerm selection:\n\n";
-    for s in report.selection {
-        md += &format!(
-            "- {}: {} ({})\n",
-            s.candidate
-                .iter()
-                .map(|t| t.name())
-                .collect::<Vec<_>>()
-                .join("+"),
-            if s.accepted { "kept" } else { "refused" },
-            s.reason
-        );
-    }
-    if let Some(c) = report.check_points {
-        md += &check_points_markdown(c);
-    }
-    for w in report.warnings {
-        md += &format!("\n**warning:** {w}\n");
-    }
-    write_bytes_atomic(&dir.join("report.md"), md.as_bytes())?;
-    Ok(())
-}
-
-/// The check points' section of `report.md`.
-fn check_points_markdown(c: &CheckPointReport) -> String {
-    let mut md = format!(
-        "\nCheck points: {} associated, {} not; after a 7-parameter similarity (scale {:.6} m per SfM unit) RMS {:.3} mm, median {:.3} mm, max {:.3} mm{}.\n\n",
-        c.points.len(),
-        c.unassociated.len(),
-        c.scale,
-        c.rms_m * 1e3,
-        c.median_m * 1e3,
-        c.max_m * 1e3,
-        match (c.predicted_rms_m, c.normalized_rms) {
-            (Some(p), Some(z)) => format!(
-                " (the targets' σ predict {:.3} mm; the residuals are {z:.2} times their own σ)",
-                p * 1e3
-            ),
-            _ => String::new(),
-        }
-    );
-    md += "| id | target | dx (mm) | dy (mm) | dz (mm) | distance (mm) |\n|---|---|---|---|---|---|\n";
-    for p in &c.points {
-        md += &format!(
-            "| {} | {} | {:+.3} | {:+.3} | {:+.3} | {:.3} |\n",
-            p.id,
-            p.target,
-            p.residual_m[0] * 1e3,
-            p.residual_m[1] * 1e3,
-            p.residual_m[2] * 1e3,
-            p.distance_m * 1e3
-        );
-    }
-    if !c.unassociated.is_empty() {
-        md += &format!("\nNot associated: {}\n", c.unassociated.join(", "));
-    }
-    md
-}
-
 /// `--video`: chooses and writes the frames with their neighbours, and returns the arguments
 /// with `--frames` set to their folder.
 fn frames_from_video(args: &Args, video: &Path, quiet: bool) -> Result<Args> {
@@ -756,93 +383,43 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             eprintln!("{m}");
         }
     };
-    let cal = calibrate_model(&model, (&detections, &neighbours), size, &config, &log)?;
-    let check = check_distortion(&cal.intrinsics, size);
-    let mut warnings = cal.warnings.clone();
-    if !check.ok {
-        warnings.push(format!(
-            "the distortion is not monotonic and invertible over the whole frame: it fails at {} \
-             of the checked pixels, from {:.0} px from the principal point (the frame reaches \
-             {:.0} px); do not use the profile near the image border",
-            check.failing_pixels,
-            check.first_failure_radius_px.unwrap_or(f64::NAN),
-            check.frame_radius_px
-        ));
-    }
-    let cross = if args.cross_validate {
-        let halves: Vec<Vec<bool>> = (0..2)
-            .map(|h| (0..names.len()).map(|k| k % 2 == h).collect())
-            .collect();
-        let mut models = Vec::new();
-        for (h, keep) in halves.iter().enumerate() {
-            let sub = model.with_images(keep);
-            let det: Vec<Vec<Ellipse>> = detections
-                .iter()
-                .zip(keep)
-                .filter(|(_, k)| **k)
-                .map(|(d, _)| d.clone())
-                .collect();
-            let nb: Vec<Vec<NeighbourDetections>> = neighbours
-                .iter()
-                .zip(keep)
-                .filter(|(_, k)| **k)
-                .map(|(d, _)| d.clone())
-                .collect();
-            log(&format!(
-                "cross-validation: half {} ({} frames)",
-                h + 1,
-                det.len()
-            ));
-            models.push(
-                calibrate_model(&sub, (&det, &nb), size, &config, &log)
-                    .with_context(|| format!("cross-validation half {}", h + 1))?,
-            );
-        }
-        let map = projection_difference(&models[0].intrinsics, &models[1].intrinsics, size);
-        let rotated =
-            projection_difference_rotated(&models[0].intrinsics, &models[1].intrinsics, size);
-        let sigma_rms =
-            |m: &Calibration| projection_uncertainty(&m.intrinsics, &m.covariance, size).rms;
-        let predicted = sigma_rms(&models[0]).hypot(sigma_rms(&models[1]));
-        let ratio = rotated.map.rms / predicted.max(f64::MIN_POSITIVE);
-        Some(CrossValidation {
-            frames: [models[0].frame_names.len(), models[1].frame_names.len()],
-            max_px: map.max,
-            rms_px: map.rms,
-            map,
-            rotated_max_px: rotated.map.max,
-            rotated_rms_px: rotated.map.rms,
-            rotation_deg: rotated.rotation_deg,
-            predicted_rms_px: predicted,
-            ratio,
-            sigma_scaled_by: ratio.max(1.0),
-        })
-    } else {
-        None
+    let input = CalibrationInput {
+        model: &model,
+        detections: &detections,
+        image_size: size,
+        neighbours: &neighbours,
     };
-    // Where the halves disagree by more than their σ say, the σ are too small for these frames
-    // (correlated detection errors, unmodelled effects): the reported σ follow the data.
-    let mut cal = cal;
-    if let Some(cv) = &cross
-        && cv.sigma_scaled_by > 1.0
-    {
-        let k = cv.sigma_scaled_by;
-        for s in &mut cal.std_dev {
-            *s *= k;
-        }
-        cal.covariance *= k * k;
-        warnings.push(format!(
-            "cross-validation: the halves' projections differ by {:.3} px RMS after the rotation between them, {k:.2} times what their σ predict ({:.3} px); the profile's σ are multiplied by {k:.2}",
-            cv.rotated_rms_px, cv.predicted_rms_px
-        ));
-    }
-    let uncertainty = projection_uncertainty(&cal.intrinsics, &cal.covariance, size);
+    let device = calibrate_device(
+        &input,
+        &DeviceConfig {
+            calibrate: config,
+            cross_validate: args.cross_validate,
+        },
+        &log,
+    )?;
+    let DeviceCalibration {
+        calibration: cal,
+        distortion_check: check,
+        projection_uncertainty: uncertainty,
+        cross_validation: cross,
+        warnings,
+    } = device;
     let model_name = args.sfm.as_ref().map_or_else(
         || "colmap (run by pipemeasure)".to_string(),
         |p| p.display().to_string(),
     );
-    let profile = profile_of(args, &cal, size, &model_name);
-    let high = high_correlations(&profile);
+    let profile = Profile::from_calibration(
+        &args.device,
+        &cal,
+        size,
+        &CalibrationSource {
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+            frames: args.frames().to_path_buf(),
+            sfm: model_name,
+            simulated: simulated_provenance(args.frames()),
+        },
+    );
+    let high = profile.high_correlations();
     let network = pipemeasure::calibrate::network::network(&cal);
     let check_report = match (&check_list, &args.check_points) {
         (Some(points), Some(path)) => {
@@ -872,8 +449,8 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let report_dir = args.report.as_deref().map(StagedDir::new).transpose()?;
     if let (Some(staged), Some(dir)) = (&report_dir, &args.report) {
         let stop_reason = cal.stop_reason();
-        let report = ReportJson {
-            schema: "pipemeasure.calibration-report/1",
+        let report = CalibrationReport {
+            schema: CALIBRATION_REPORT_SCHEMA,
             device: &args.device,
             profile: &profile,
             selection: &cal.selection,
@@ -899,7 +476,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             check_points: check_report.as_ref(),
             frame_jackknife: cal.frame_jackknife.as_ref(),
         };
-        write_report(staged.path(), &cal, size, &report)
+        write_calibration_report(staged.path(), &cal, size, &report)
             .with_context(|| format!("writing the report {}", dir.display()))?;
     }
     let network_dir = match (&args.network, &colmap) {

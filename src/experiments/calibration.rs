@@ -13,7 +13,8 @@ use serde::Serialize;
 
 use super::matching::{Scenario, detections};
 use crate::adjust::{BrownModel, FixedParameters, Observation, Problem};
-use crate::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, calibrate};
+use crate::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput};
+use crate::calibrate::{DeviceConfig, calibrate_device};
 use crate::camera::{Intrinsics, Term};
 use crate::geometry::conic::Ellipse;
 use crate::io::colmap::Reconstruction;
@@ -71,7 +72,13 @@ pub fn run(
         image_size: (s.truth.camera.width, s.truth.camera.height),
         neighbours: &[],
     };
-    calibrate(&input, config, log).map_err(|e| e.to_string())
+    let config = DeviceConfig {
+        calibrate: config.clone(),
+        cross_validate: false,
+    };
+    calibrate_device(&input, &config, log)
+        .map(|d| d.calibration)
+        .map_err(|e| e.to_string())
 }
 
 /// A calibration compared with the truth.

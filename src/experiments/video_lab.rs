@@ -24,9 +24,8 @@ use crate::calibrate::checks::{
     projection_difference, projection_difference_rotated, projection_uncertainty,
 };
 use crate::calibrate::neighbours::detect_neighbours;
-use crate::calibrate::pipeline::{
-    CalibrateConfig, Calibration, CalibrationInput, ReadoutStart, calibrate,
-};
+use crate::calibrate::pipeline::{CalibrateConfig, Calibration, CalibrationInput, ReadoutStart};
+use crate::calibrate::{DeviceConfig, calibrate_device};
 use crate::detect::{DetectConfig, detect_frame_files};
 use crate::io::colmap::Reconstruction;
 use crate::sim::truth::Truth;
@@ -152,8 +151,13 @@ pub fn run_video_lab(lab_dir: &Path, log: &dyn Fn(&str)) -> Result<VideoLabResul
             image_size: size,
             neighbours: &neighbours,
         };
-        let cal =
-            calibrate(&input, &config, &|m| log(&format!("  {m}"))).map_err(|e| e.to_string())?;
+        let config = DeviceConfig {
+            calibrate: config,
+            cross_validate: false,
+        };
+        let cal = calibrate_device(&input, &config, &|m| log(&format!("  {m}")))
+            .map_err(|e| e.to_string())?
+            .calibration;
         rows.push(score(
             model_kind,
             &cal,

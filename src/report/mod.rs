@@ -1,5 +1,7 @@
-//! Reports for people (layer 6): the calibration report's plots (SVG, plotters) and tables.
+//! Reports for people (layer 6): the calibration report (`report.md`, `report.json`), its plots
+//! (SVG, plotters) and tables.
 
+pub mod calibration;
 pub mod plots;
 
 /// A plot that could not be drawn or written.
@@ -17,4 +19,7 @@ pub enum ReportError {
     /// Writing failed.
     #[error(transparent)]
     Write(#[from] crate::io::WriteError),
+    /// A JSON report could not be serialised.
+    #[error("cannot serialise the report: {0}")]
+    Json(#[from] serde_json::Error),
 }

@@ -629,6 +629,25 @@ pub fn project(camera: &BrownCamera, frame: &TruthFrame, p: &Point3<f64>) -> Opt
     camera.project_world(&frame.cam_from_world(), &p.coords)
 }
 
+/// The provenance note of a profile calibrated from simulated frames: frames from
+/// `pipemeasure simulate lab` carry their truth (`truth.json`) in the folder above them; `None`
+/// when there is none (a real phone's frames).
+#[must_use]
+pub fn simulated_provenance(frames: &std::path::Path) -> Option<serde_json::Value> {
+    let truth = frames
+        .parent()
+        .map(|d| d.join("truth.json"))
+        .filter(|p| p.is_file())
+        .and_then(|p| Truth::read(&p).ok())?;
+    Some(serde_json::json!({
+        "scene": truth.scene,
+        "device_preset": truth.camera.device,
+        "seed": truth.seed,
+        "simulate_command": truth.command,
+        "note": "calibrated from simulated frames, not a real phone: calibrate your own phone and replace this profile",
+    }))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -145,6 +145,16 @@ pub enum CalibrateError {
     /// The detections do not correspond to the model's frames.
     #[error("{0}")]
     Input(String),
+    /// The calibration of one half of the frames for the cross-validation
+    /// ([`super::device`]).
+    #[error("cross-validation half {half}: {source}")]
+    CrossValidation {
+        /// 1 (odd frames) or 2 (even frames).
+        half: usize,
+        /// Why it failed.
+        #[source]
+        source: Box<CalibrateError>,
+    },
 }
 
 /// The model frames' detections: `detections[k]` are the ellipses (observed pixels) of the
