@@ -6,12 +6,15 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use pipemeasure::calibrate::check_points::check_points;
+use pipemeasure::calibrate::check_points::{CheckPointReport, check_points};
+use pipemeasure::calibrate::checks::ImageMap;
 use pipemeasure::calibrate::neighbours::detect_neighbours;
+use pipemeasure::calibrate::network::ColmapNetwork;
 use pipemeasure::calibrate::network::colmap_network;
 use pipemeasure::calibrate::pipeline::{
     CalibrateConfig, CalibrationInput, NeighbourDetections, ReadoutStart,
 };
+use pipemeasure::calibrate::{Calibration, CrossValidation};
 use pipemeasure::calibrate::{DeviceCalibration, DeviceConfig, calibrate_device};
 use pipemeasure::detect::DetectConfig;
 use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
@@ -19,6 +22,7 @@ use pipemeasure::io::colmap::{
     ColmapOptions, ColmapProgress, ModelFormat, Reconstruction, run_colmap_sfm_with,
 };
 use pipemeasure::io::sidecar::FramesSidecar;
+use pipemeasure::io::tls::TlsTarget;
 use pipemeasure::profile::CalibrationSource;
 use pipemeasure::profile::{CALIBRATIONS_DIR, Profile, backup_path, validate_device_name};
 use pipemeasure::report::calibration::{
@@ -276,24 +280,10 @@ fn check_frames(model: &Reconstruction, frames: &Path) -> Result<Vec<String>> {
     Ok(names)
 }
 
-/// `--video`: chooses and writes the frames with their neighbours, and returns the arguments
-/// with `--frames` set to their folder.
-fn frames_from_video(args: &Args, video: &Path, quiet: bool) -> Result<Args> {
-    let dir = args
-        .frames
-        .clone()
-        .unwrap_or_else(|| super::frames::default_dir(video));
-    let rule = super::frames::rule(args.per_second, args.every_frame_at);
-    super::frames::write_video_frames(video, &dir, rule, true, quiet)
-        .with_context(|| "--video".to_string())?;
-    Ok(Args {
-        frames: Some(dir),
-        video: None,
-        ..args.clone()
-    })
-}
-
-pub fn run(args: &Args, globals: Globals) -> Result<()> {
+/// What is checked before minutes of calibration: the device name, the frames or video, the
+/// check points (read: a bad file fails first), and every destination writable. Returns the
+/// check points and the profile's path.
+fn preflight(args: &Args) -> Result<(Option<Vec<TlsTarget>>, PathBuf)> {
     validate_device_name(&args.device).map_err(|e| usage(format!("--device: {e}")))?;
     match &args.video {
         Some(video) if !video.is_file() => bail!("--video {}: no such file", video.display()),
@@ -345,6 +335,125 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     for dir in [&args.report, &args.network].into_iter().flatten() {
         check_writable_dir(dir)?;
     }
+    Ok((check_list, out))
+}
+
+/// What `calibrate` prints when it is done.
+struct Outcome<'a> {
+    args: &'a Args,
+    cal: &'a Calibration,
+    high: &'a [(String, String, f64)],
+    uncertainty: &'a ImageMap,
+    cross: Option<&'a CrossValidation>,
+    warnings: &'a [String],
+    check_report: Option<&'a CheckPointReport>,
+    colmap: Option<&'a ColmapNetwork>,
+    out: &'a Path,
+    backup: Option<&'a Path>,
+}
+
+/// Prints the calibration's summary: the fit, the intrinsics, the checks, the warnings and
+/// where everything was written.
+fn print_outcome(o: &Outcome<'_>) -> Result<()> {
+    outln!(
+        "calibrated {} from {} frames: {} targets, {} observations, σ0 {:.4} px, residual RMS {:.4} px",
+        o.args.device,
+        o.cal.frame_names.len(),
+        o.cal.points.len(),
+        o.cal.observations.len(),
+        o.cal.sigma0,
+        o.cal.residual_rms_px
+    );
+    out!("{}", intrinsics_table(o.cal));
+    for (a, b, r) in o.high {
+        outln!("correlation {a}/{b} = {r:.3} (above 0.9)");
+    }
+    outln!(
+        "projection uncertainty of a ray: worst {:.4} px, RMS {:.4} px over the frame",
+        o.uncertainty.max,
+        o.uncertainty.rms
+    );
+    if let Some(cv) = o.cross {
+        outln!(
+            "cross-validation ({} / {} frames): the halves' projections differ by {:.4} px at most, {:.4} px RMS; after the rotation between them ({:.4}°) {:.4} px at most, {:.4} px RMS, {:.2} × the {:.4} px their σ predict",
+            cv.frames[0],
+            cv.frames[1],
+            cv.max_px,
+            cv.rms_px,
+            cv.rotation_deg,
+            cv.rotated_max_px,
+            cv.rotated_rms_px,
+            cv.ratio,
+            cv.predicted_rms_px
+        );
+    }
+    for w in o.warnings {
+        outln!("WARNING: {w}");
+    }
+    if let Some(c) = o.check_report {
+        outln!(
+            "check points: {} associated ({} not), RMS {:.3} mm, median {:.3} mm, max {:.3} mm after a similarity{}",
+            c.points.len(),
+            c.unassociated.len(),
+            c.rms_m * 1e3,
+            c.median_m * 1e3,
+            c.max_m * 1e3,
+            match (c.predicted_rms_m, c.normalized_rms) {
+                (Some(p), Some(z)) => format!(
+                    "; the targets' σ predict {:.3} mm; the residuals are {z:.2} × their own σ",
+                    p * 1e3
+                ),
+                _ => String::new(),
+            }
+        );
+    }
+    if let (Some(dir), Some(net)) = (&o.args.network, o.colmap) {
+        outln!(
+            "adjusted network written to {} as a COLMAP model ({} images, {} targets; camera {}{})",
+            dir.display(),
+            net.model.images.len(),
+            net.model.points3d.len(),
+            net.camera_model.name(),
+            if net.exact {
+                " holding the profile exactly".to_string()
+            } else {
+                format!(
+                    ", up to {:.3} px from the profile: COLMAP has no {}",
+                    net.max_error_px,
+                    net.missing_terms.join(", ")
+                )
+            }
+        );
+    }
+    outln!("profile written to {}", o.out.display());
+    if let Some(b) = o.backup {
+        outln!("the profile it replaces kept as {}", b.display());
+    }
+    if let Some(dir) = &o.args.report {
+        outln!("report written to {}", dir.display());
+    }
+    Ok(())
+}
+
+/// `--video`: chooses and writes the frames with their neighbours, and returns the arguments
+/// with `--frames` set to their folder.
+fn frames_from_video(args: &Args, video: &Path, quiet: bool) -> Result<Args> {
+    let dir = args
+        .frames
+        .clone()
+        .unwrap_or_else(|| super::frames::default_dir(video));
+    let rule = super::frames::rule(args.per_second, args.every_frame_at);
+    super::frames::write_video_frames(video, &dir, rule, true, quiet)
+        .with_context(|| "--video".to_string())?;
+    Ok(Args {
+        frames: Some(dir),
+        video: None,
+        ..args.clone()
+    })
+}
+
+pub fn run(args: &Args, globals: Globals) -> Result<()> {
+    let (check_list, out) = preflight(args)?;
     // The video's frames once every destination is known to be writable.
     let from_video;
     let args = match &args.video {
@@ -498,82 +607,16 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     let backup = staged_profile
         .commit()
         .with_context(|| format!("writing the profile {}", out.display()))?;
-    outln!(
-        "calibrated {} from {} frames: {} targets, {} observations, σ0 {:.4} px, residual RMS {:.4} px",
-        args.device,
-        cal.frame_names.len(),
-        cal.points.len(),
-        cal.observations.len(),
-        cal.sigma0,
-        cal.residual_rms_px
-    );
-    out!("{}", intrinsics_table(&cal));
-    for (a, b, r) in &high {
-        outln!("correlation {a}/{b} = {r:.3} (above 0.9)");
-    }
-    outln!(
-        "projection uncertainty of a ray: worst {:.4} px, RMS {:.4} px over the frame",
-        uncertainty.max,
-        uncertainty.rms
-    );
-    if let Some(cv) = &cross {
-        outln!(
-            "cross-validation ({} / {} frames): the halves' projections differ by {:.4} px at most, {:.4} px RMS; after the rotation between them ({:.4}°) {:.4} px at most, {:.4} px RMS, {:.2} × the {:.4} px their σ predict",
-            cv.frames[0],
-            cv.frames[1],
-            cv.max_px,
-            cv.rms_px,
-            cv.rotation_deg,
-            cv.rotated_max_px,
-            cv.rotated_rms_px,
-            cv.ratio,
-            cv.predicted_rms_px
-        );
-    }
-    for w in &warnings {
-        outln!("WARNING: {w}");
-    }
-    if let Some(c) = &check_report {
-        outln!(
-            "check points: {} associated ({} not), RMS {:.3} mm, median {:.3} mm, max {:.3} mm after a similarity{}",
-            c.points.len(),
-            c.unassociated.len(),
-            c.rms_m * 1e3,
-            c.median_m * 1e3,
-            c.max_m * 1e3,
-            match (c.predicted_rms_m, c.normalized_rms) {
-                (Some(p), Some(z)) => format!(
-                    "; the targets' σ predict {:.3} mm; the residuals are {z:.2} × their own σ",
-                    p * 1e3
-                ),
-                _ => String::new(),
-            }
-        );
-    }
-    if let (Some(dir), Some(net)) = (&args.network, &colmap) {
-        outln!(
-            "adjusted network written to {} as a COLMAP model ({} images, {} targets; camera {}{})",
-            dir.display(),
-            net.model.images.len(),
-            net.model.points3d.len(),
-            net.camera_model.name(),
-            if net.exact {
-                " holding the profile exactly".to_string()
-            } else {
-                format!(
-                    ", up to {:.3} px from the profile: COLMAP has no {}",
-                    net.max_error_px,
-                    net.missing_terms.join(", ")
-                )
-            }
-        );
-    }
-    outln!("profile written to {}", out.display());
-    if let Some(b) = backup {
-        outln!("the profile it replaces kept as {}", b.display());
-    }
-    if let Some(dir) = &args.report {
-        outln!("report written to {}", dir.display());
-    }
-    Ok(())
+    print_outcome(&Outcome {
+        args,
+        cal: &cal,
+        high: &high,
+        uncertainty: &uncertainty,
+        cross: cross.as_ref(),
+        warnings: &warnings,
+        check_report: check_report.as_ref(),
+        colmap: colmap.as_ref(),
+        out: &out,
+        backup: backup.as_deref(),
+    })
 }
