@@ -280,6 +280,47 @@ fn check_frames(model: &Reconstruction, frames: &Path) -> Result<Vec<String>> {
     Ok(names)
 }
 
+/// The loop's configuration from the options: the iteration cap and the rolling shutter
+/// (off, or tried with a nominal or the given readout time).
+fn calibrate_config(args: &Args) -> CalibrateConfig {
+    CalibrateConfig {
+        max_iterations: usize::from(args.max_iterations),
+        rolling_shutter: match (args.rolling_shutter, args.readout_time) {
+            (RollingShutterMode::Off, _) => None,
+            (RollingShutterMode::Auto, None) => Some(ReadoutStart::default()),
+            (RollingShutterMode::Auto, Some(ms)) => Some(ReadoutStart {
+                readout_s: ms * 1e-3,
+                hold: true,
+            }),
+        },
+        ..CalibrateConfig::default()
+    }
+}
+
+/// The adjusted targets against the check points, when given (`--check-points`).
+fn check_point_report(
+    args: &Args,
+    check_list: Option<&[TlsTarget]>,
+    cal: &Calibration,
+) -> Result<Option<CheckPointReport>> {
+    Ok(match (check_list, &args.check_points) {
+        (Some(points), Some(path)) => {
+            let list: Vec<(String, nalgebra::Point3<f64>)> =
+                points.iter().map(|t| (t.id.clone(), t.position)).collect();
+            Some(
+                check_points(
+                    &cal.points,
+                    cal.point_covariance.as_deref(),
+                    &list,
+                    args.check_point_sigma,
+                )
+                .with_context(|| format!("check points {}", path.display()))?,
+            )
+        }
+        _ => None,
+    })
+}
+
 /// What is checked before minutes of calibration: the device name, the frames or video, the
 /// check points (read: a bad file fails first), and every destination writable. Returns the
 /// check points and the profile's path.
@@ -474,18 +515,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         globals.quiet,
     )?;
     let neighbours = neighbour_detections(args, &names, size, globals.quiet)?;
-    let config = CalibrateConfig {
-        max_iterations: usize::from(args.max_iterations),
-        rolling_shutter: match (args.rolling_shutter, args.readout_time) {
-            (RollingShutterMode::Off, _) => None,
-            (RollingShutterMode::Auto, None) => Some(ReadoutStart::default()),
-            (RollingShutterMode::Auto, Some(ms)) => Some(ReadoutStart {
-                readout_s: ms * 1e-3,
-                hold: true,
-            }),
-        },
-        ..CalibrateConfig::default()
-    };
+    let config = calibrate_config(args);
     let quiet = globals.quiet;
     let log = move |m: &str| {
         if !quiet {
@@ -530,22 +560,7 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     );
     let high = profile.high_correlations();
     let network = pipemeasure::calibrate::network::network(&cal);
-    let check_report = match (&check_list, &args.check_points) {
-        (Some(points), Some(path)) => {
-            let list: Vec<(String, nalgebra::Point3<f64>)> =
-                points.iter().map(|t| (t.id.clone(), t.position)).collect();
-            Some(
-                check_points(
-                    &cal.points,
-                    cal.point_covariance.as_deref(),
-                    &list,
-                    args.check_point_sigma,
-                )
-                .with_context(|| format!("check points {}", path.display()))?,
-            )
-        }
-        _ => None,
-    };
+    let check_report = check_point_report(args, check_list.as_deref(), &cal)?;
     let colmap = match &args.network {
         Some(_) => Some(
             colmap_network(&cal, &profile.camera())

@@ -12,7 +12,7 @@ use super::{
 };
 use crate::adjust::{BrownModel, free_network_datum};
 use crate::calibrate::checks::{projection_difference_rotated, projection_uncertainty};
-use crate::calibrate::matching::match_targets;
+use crate::calibrate::matching::{Matching, match_targets};
 use crate::calibrate::refine::{Algorithm1, PairGeometry};
 use crate::calibrate::selection::{
     ModelChoice, Selected, SelectionConfig, adjust_terms, estimate_readout_time, select_terms,
@@ -154,23 +154,7 @@ impl<'a> Loop<'a> {
             log,
             ..
         } = self.fixed;
-        // Step 4.
-        let obs: Vec<Vec<TargetObservation>> = self
-            .cameras
-            .iter()
-            .zip(input.detections)
-            .enumerate()
-            .map(|(k, (cam, det))| observations(k, cam, det))
-            .collect();
-        // Step 5.
-        let m = match_targets(
-            &self.cameras,
-            &obs,
-            &self.pairs,
-            input.image_size,
-            a1.reprojection_sigma,
-            &config.matching,
-        );
+        let (obs, m) = self.match_frames();
         let signature = match_signature(&m);
         let changed = self.previous.as_ref() != Some(&signature);
         let cycle = changed && self.seen.contains(&signature);
@@ -221,15 +205,7 @@ impl<'a> Loop<'a> {
             Err(e) => return self.failed(iteration, e),
         };
         if !dropped_frames.is_empty() {
-            log(&format!(
-                "iteration {iteration}: {} frame(s) left out of the adjustment, fewer than {MIN_FRAME_OBSERVATIONS} target observations: {}",
-                dropped_frames.len(),
-                dropped_frames
-                    .iter()
-                    .map(|&k| a1.frames[k].name.as_str())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ));
+            log(&dropped_line(iteration, &dropped_frames, a1));
         }
         let reference = problem.points.clone();
         let terms_held = self.held.is_some();
@@ -289,50 +265,8 @@ impl<'a> Loop<'a> {
         if let Err(e) = free_network_datum(&mut selected.problem, &reference) {
             return self.failed(iteration, e);
         }
-        let intrinsics = intrinsics_of(&selected.problem);
-        // How far the camera moved since the last iteration, against its own uncertainty.
-        let change = self.last.as_ref().map(|(prev, _)| {
-            let moved = projection_difference_rotated(
-                &intrinsics_of(&prev.problem),
-                &intrinsics,
-                input.image_size,
-            )
-            .map
-            .max;
-            let sigma = projection_uncertainty(
-                &intrinsics,
-                &intrinsic_covariance(&selected.precision),
-                input.image_size,
-            )
-            .max;
-            (moved, moved / sigma.max(f64::MIN_POSITIVE))
-        });
-        for cam in self.cameras.iter_mut() {
-            cam.intrinsics = intrinsics;
-        }
-        for (&frame, pose) in frames.iter().zip(&selected.problem.cam_from_world) {
-            self.cameras[frame].cam_from_world = *pose;
-        }
-        refresh_pairs(&mut self.pairs, &self.cameras);
-        log(&format!(
-            "iteration {iteration}: {} targets matched ({views} views; {} merged, {} views added by their points, {} not round in their plane), {} adjusted with {} observations; σ0 {:.4} px; terms {}{}",
-            targets,
-            m.consolidation.merged,
-            m.consolidation.grown,
-            m.not_round,
-            selected.problem.points.len(),
-            selected.precision.observations,
-            selected.precision.sigma0,
-            selected
-                .terms
-                .iter()
-                .map(|t| t.name())
-                .collect::<Vec<_>>()
-                .join(", "),
-            change.map_or(String::new(), |(px, ratio)| format!(
-                "; the camera moved by {px:.4} px at most ({ratio:.3} × its projection σ)"
-            ))
-        ));
+        let change = self.adopt(&selected, &frames);
+        log(&iteration_line(iteration, &m, views, &selected, change));
         self.iterations.push(LoopRecord {
             adjusted_targets: selected.problem.points.len(),
             adjusted_observations: selected.precision.observations,
@@ -354,6 +288,59 @@ impl<'a> Loop<'a> {
                 threshold: config.camera_stable_ratio,
             })
         }))
+    }
+
+    /// Steps 4–5: each frame's detections undistorted with its current camera, and matched
+    /// (Algorithms 2–3).
+    fn match_frames(&self) -> (Vec<Vec<TargetObservation>>, Matching) {
+        let LoopInput {
+            input, config, a1, ..
+        } = self.fixed;
+        let obs: Vec<Vec<TargetObservation>> = self
+            .cameras
+            .iter()
+            .zip(input.detections)
+            .enumerate()
+            .map(|(k, (cam, det))| observations(k, cam, det))
+            .collect();
+        let m = match_targets(
+            &self.cameras,
+            &obs,
+            &self.pairs,
+            input.image_size,
+            a1.reprojection_sigma,
+            &config.matching,
+        );
+        (obs, m)
+    }
+
+    /// Takes the adjustment's camera and poses for the next iteration and refreshes the
+    /// pairs' geometry; returns how far the camera moved since the last iteration, in pixels
+    /// and against its own projection σ (`None` in the first).
+    fn adopt(&mut self, selected: &Selected, frames: &[usize]) -> Option<(f64, f64)> {
+        let size = self.fixed.input.image_size;
+        let intrinsics = intrinsics_of(&selected.problem);
+        let change = self.last.as_ref().map(|(prev, _)| {
+            let moved =
+                projection_difference_rotated(&intrinsics_of(&prev.problem), &intrinsics, size)
+                    .map
+                    .max;
+            let sigma = projection_uncertainty(
+                &intrinsics,
+                &intrinsic_covariance(&selected.precision),
+                size,
+            )
+            .max;
+            (moved, moved / sigma.max(f64::MIN_POSITIVE))
+        });
+        for cam in self.cameras.iter_mut() {
+            cam.intrinsics = intrinsics;
+        }
+        for (&frame, pose) in frames.iter().zip(&selected.problem.cam_from_world) {
+            self.cameras[frame].cam_from_world = *pose;
+        }
+        refresh_pairs(&mut self.pairs, &self.cameras);
+        change
     }
 
     /// The selection alternating between two models ([`settle_alternation`]): the one with
@@ -478,4 +465,46 @@ impl<'a> Loop<'a> {
             }
         }
     }
+}
+
+/// The log line of an adjusted iteration.
+fn iteration_line(
+    iteration: usize,
+    m: &Matching,
+    views: usize,
+    selected: &Selected,
+    change: Option<(f64, f64)>,
+) -> String {
+    format!(
+        "iteration {iteration}: {} targets matched ({views} views; {} merged, {} views added by their points, {} not round in their plane), {} adjusted with {} observations; σ0 {:.4} px; terms {}{}",
+        m.tracks.len(),
+        m.consolidation.merged,
+        m.consolidation.grown,
+        m.not_round,
+        selected.problem.points.len(),
+        selected.precision.observations,
+        selected.precision.sigma0,
+        selected
+            .terms
+            .iter()
+            .map(|t| t.name())
+            .collect::<Vec<_>>()
+            .join(", "),
+        change.map_or(String::new(), |(px, ratio)| format!(
+            "; the camera moved by {px:.4} px at most ({ratio:.3} × its projection σ)"
+        ))
+    )
+}
+
+/// The log line of the frames left out of an iteration's adjustment.
+fn dropped_line(iteration: usize, dropped_frames: &[usize], a1: &Algorithm1) -> String {
+    format!(
+        "iteration {iteration}: {} frame(s) left out of the adjustment, fewer than {MIN_FRAME_OBSERVATIONS} target observations: {}",
+        dropped_frames.len(),
+        dropped_frames
+            .iter()
+            .map(|&k| a1.frames[k].name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    )
 }
