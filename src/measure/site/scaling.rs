@@ -21,7 +21,7 @@ use crate::camera::rolling::RowTiming;
 use crate::detect::{DetectConfig, detect_frame_files};
 use crate::geometry::triangulation::{Observation, triangulate};
 use crate::io::colmap::Reconstruction;
-use crate::io::tls::read_targets;
+use crate::io::tls::{TlsTarget, read_targets};
 use crate::measure::scale::ReconstructedTarget;
 use crate::measure::scale::{ScaleConfig, ScaleEstimate, estimate_scale};
 use crate::measure::targets::{SiteTargets, match_site_targets};
@@ -161,6 +161,75 @@ pub(super) fn median_angular_speed_deg_s(motions: &[crate::camera::rolling::Moti
     speeds[speeds.len() / 2]
 }
 
+/// The TLS targets of the list, only those of `--tls-ids` when given; at least two.
+fn selected_tls_targets(
+    request: &SiteRequest,
+    tls_path: &Path,
+) -> Result<Vec<TlsTarget>, SiteError> {
+    let mut tls = read_targets(tls_path)?;
+    if !request.tls_ids.is_empty() {
+        for id in &request.tls_ids {
+            if !tls.iter().any(|t| &t.id == id) {
+                return Err(SiteError::Input(format!(
+                    "--tls-ids: target `{id}` is not in {} (its ids: {})",
+                    tls_path.display(),
+                    tls.iter()
+                        .map(|t| t.id.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                )));
+            }
+        }
+        tls.retain(|t| request.tls_ids.contains(&t.id));
+    }
+    if tls.len() < 2 {
+        return Err(SiteError::Input(format!(
+            "{}: {} TLS target(s); the scale needs at least two",
+            tls_path.display(),
+            tls.len()
+        )));
+    }
+    Ok(tls)
+}
+
+/// The log lines of the poses re-adjusted to the profile, with or without the rolling shutter.
+fn log_poses(
+    request: &SiteRequest,
+    poses: &ConsistentPoses,
+    undistorted: bool,
+    log: &dyn Fn(&str),
+) {
+    log(&format!(
+        "Algorithm 1: reprojection σ {:.2} px with the model's poses and {}, {:.2} px after re-adjusting the poses to it",
+        poses.sigma_before_px,
+        if undistorted {
+            "its pinhole camera"
+        } else {
+            "the profile's intrinsics"
+        },
+        poses.sigma_after_px
+    ));
+    match &poses.rolling {
+        Some(r) => log(&format!(
+            "rolling shutter: readout {:.1} ms ({}); a motion per frame adjusted with the poses: reprojection σ {:.2} px without, {:.2} px with; median angular speed {:.1} °/s",
+            r.timing.readout_s * 1e3,
+            if request.readout_time_s.is_some() {
+                "given"
+            } else {
+                "the profile's"
+            },
+            r.sigma_global_px,
+            r.sigma_px,
+            median_angular_speed_deg_s(&r.motions)
+        )),
+        None => log(if request.global_shutter {
+            "rolling shutter: left out (--rolling-shutter off)"
+        } else {
+            "rolling shutter: not modelled (the profile has no readout time; give --readout-time MS for video frames)"
+        }),
+    }
+}
+
 /// Scale from the targets: the profile's intrinsics, the model's poses re-adjusted to them, the
 /// targets detected (in parallel; `progress(frames)` once per frame done), matched and corrected, and the scale
 /// against the TLS targets.
@@ -203,29 +272,7 @@ pub fn scale_from_targets(
         "TLS target list",
         "--tls-targets",
     )?;
-    let mut tls = read_targets(&tls_path)?;
-    if !request.tls_ids.is_empty() {
-        for id in &request.tls_ids {
-            if !tls.iter().any(|t| &t.id == id) {
-                return Err(SiteError::Input(format!(
-                    "--tls-ids: target `{id}` is not in {} (its ids: {})",
-                    tls_path.display(),
-                    tls.iter()
-                        .map(|t| t.id.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )));
-            }
-        }
-        tls.retain(|t| request.tls_ids.contains(&t.id));
-    }
-    if tls.len() < 2 {
-        return Err(SiteError::Input(format!(
-            "{}: {} TLS target(s); the scale needs at least two",
-            tls_path.display(),
-            tls.len()
-        )));
-    }
+    let tls = selected_tls_targets(request, &tls_path)?;
     let model = Reconstruction::read(&sfm)?;
     if model.images.is_empty() {
         return Err(SiteError::Input(format!(
@@ -265,35 +312,7 @@ pub fn scale_from_targets(
         path: sfm.clone(),
         source,
     })?;
-    log(&format!(
-        "Algorithm 1: reprojection σ {:.2} px with the model's poses and {}, {:.2} px after re-adjusting the poses to it",
-        poses.sigma_before_px,
-        if undistorted {
-            "its pinhole camera"
-        } else {
-            "the profile's intrinsics"
-        },
-        poses.sigma_after_px
-    ));
-    match &poses.rolling {
-        Some(r) => log(&format!(
-            "rolling shutter: readout {:.1} ms ({}); a motion per frame adjusted with the poses: reprojection σ {:.2} px without, {:.2} px with; median angular speed {:.1} °/s",
-            r.timing.readout_s * 1e3,
-            if request.readout_time_s.is_some() {
-                "given"
-            } else {
-                "the profile's"
-            },
-            r.sigma_global_px,
-            r.sigma_px,
-            median_angular_speed_deg_s(&r.motions)
-        )),
-        None => log(if request.global_shutter {
-            "rolling shutter: left out (--rolling-shutter off)"
-        } else {
-            "rolling shutter: not modelled (the profile has no readout time; give --readout-time MS for video frames)"
-        }),
-    }
+    log_poses(request, &poses, undistorted, log);
     let names: Vec<String> = poses.a1.frames.iter().map(|f| f.name.clone()).collect();
     let config = DetectConfig {
         min_semi_minor_px: request.min_semi_minor_px,
