@@ -149,6 +149,9 @@ const REGION_M: f64 = 0.4;
 /// # Errors
 ///
 /// A message naming the step that failed.
+///
+/// Kept whole (one function over 150 lines): an experiment script whose steps (the site read,
+/// both methods, the row) read top to bottom, each used once.
 pub fn run_site(
     site_dir: &Path,
     profile: &BrownCamera,

@@ -565,6 +565,11 @@ pub fn fit_cylinder_among(
 /// [`fit_cylinder_among`] with the candidates also given as their curve positions `pool`
 /// (sorted): the subsample is drawn from `candidates`, the passes over every candidate run
 /// over `pool`, reading the points and their local geometry in memory order.
+///
+/// Kept whole (one function over 150 lines): its stages (draw, MSAC scoring with the arc,
+/// refinement of the covering hypotheses in rank order, the settle check) share the subsample's
+/// cached geometry and the ranked list in place; split, each would take most of them as
+/// arguments.
 fn fit_among(
     cloud: &Cloud,
     candidates: &[usize],

@@ -93,6 +93,10 @@ impl State {
 
 /// Adjusts `poses`, `points` and the camera's `f`, `k` to `observations` (robust LM). Returns
 /// the final RMS reprojection error of the observations (px).
+///
+/// Kept whole (one function over 150 lines): one Levenberg–Marquardt loop (normal equations,
+/// damping, step test) of the stand-in SfM, the simulator's own and independent of
+/// [`crate::adjust`].
 pub fn adjust(
     camera: &mut SimpleRadial,
     poses: &mut [Rigid3],

@@ -89,6 +89,9 @@ impl PlantLayout {
 }
 
 /// Draws a plant room from `seed`.
+///
+/// Kept whole (one function over 150 lines): a scene description read top to bottom, its
+/// objects drawn in order from one random stream (the order of the draws is the room).
 #[must_use]
 pub fn plant_room(seed: u64) -> PlantRoom {
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x9_1A47);

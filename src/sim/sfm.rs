@@ -284,6 +284,9 @@ pub fn stand_in_observed(
 /// more than 4 px and the points left with fewer than two, adjust again. `true_points[j]` is
 /// the world point of the `j`-th model point (id `j + 1`); the returned similarity maps the
 /// world onto the adjusted points best (the SfM frame is the adjustment's).
+///
+/// Kept whole (one function over 150 lines): COLMAP's adjust, filter, adjust on one model, the
+/// filters reading the first adjustment's residuals in place.
 fn adjust_model(model: &mut Reconstruction, true_points: &[Point3<f64>]) -> StandInAdjustment {
     const MAX_ERROR_PX: f64 = 4.0;
     let ids: Vec<ImageId> = model.images.keys().copied().collect();

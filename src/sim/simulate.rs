@@ -340,6 +340,9 @@ pub struct SiteOptions {
 /// # Errors
 ///
 /// [`SimError`] for bad options, a file that cannot be written, or a failed COLMAP run.
+///
+/// Kept whole (one function over 150 lines): the site simulation's steps in the order they
+/// write their files (scene, frames, SfM, dense cloud, TLS scan, truth), each once.
 pub fn simulate_site(
     options: &SimulateOptions,
     site: &SiteOptions,

@@ -404,6 +404,11 @@ const MIN_AXIAL_FILL: f64 = 0.6;
 const REDUCER_OVERLAP_M: f64 = 0.03;
 
 /// Step 5: merges, refusals and the accepted segments.
+///
+/// Kept whole (one function over 150 lines): the merge and refusal rules run in order over one
+/// list of candidates with shared indices; each rule's test is its own function
+/// ([`gap_between`], [`axial_fill`], the shape tests), the loop that orders them is what
+/// remains.
 fn accept(
     cloud: &Cloud,
     pieces: Vec<Piece>,

@@ -100,6 +100,10 @@ impl SplitMix {
 ///
 /// With a fixed pose table and no readout or exposure the output is bit for bit that of
 /// [`super::render_radiance`].
+///
+/// Kept whole (one function over 150 lines): the hot loop over row bands, whose closures share
+/// the displacement grid, the pose table and the band buffers; a split would pass them all
+/// through.
 #[must_use]
 pub fn render_radiance_moving(
     scene: &Scene,
