@@ -174,7 +174,7 @@ pub fn fit_ellipse_geometric(
     for _ in 0..2 {
         let res: Vec<f64> = points.iter().map(|p| residual(&e, p).0).collect();
         // 1.4826·MAD, floored so that exact data keeps every point.
-        let sigma = (1.4826 * median_abs(&res)).max(1e-6);
+        let sigma = (crate::robust::MAD_TO_SIGMA * median_abs(&res)).max(1e-6);
         let keep: Vec<Vector2<f64>> = points
             .iter()
             .zip(&res)
@@ -227,7 +227,7 @@ pub fn centre_std_correlated(
 ) -> Option<f64> {
     let res: Vec<(f64, SVector<f64, 5>)> = points.iter().map(|p| residual(e, p)).collect();
     let dists: Vec<f64> = res.iter().map(|r| r.0).collect();
-    let cut = 3.0 * (1.4826 * median_abs(&dists)).max(1e-6);
+    let cut = 3.0 * (crate::robust::MAD_TO_SIGMA * median_abs(&dists)).max(1e-6);
     let used: Vec<usize> = (0..points.len())
         .filter(|&i| dists[i].abs() <= cut)
         .collect();
@@ -285,7 +285,7 @@ pub fn shape_harmonics(e: &Ellipse, points: &[Vector2<f64>]) -> Option<f64> {
         })
         .collect();
     let dists: Vec<f64> = res.iter().map(|r| r.1).collect();
-    let cut = 3.0 * (1.4826 * median_abs(&dists)).max(1e-6);
+    let cut = 3.0 * (crate::robust::MAD_TO_SIGMA * median_abs(&dists)).max(1e-6);
     let used: Vec<(f64, f64)> = res.into_iter().filter(|r| r.1.abs() <= cut).collect();
     if used.len() < 20 {
         return None;

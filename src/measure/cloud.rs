@@ -331,7 +331,7 @@ fn robust_normal(nb: &[Vector3<f64>]) -> Option<(Vector3<f64>, f64)> {
     } else {
         *bits[..m].select_nth_unstable(m / 2).1
     };
-    let limit = (2.5 * 1.4826 * f64::from_bits(median)).max(1e-12);
+    let limit = (2.5 * crate::robust::MAD_TO_SIGMA * f64::from_bits(median)).max(1e-12);
     let mut keep = [true; NORMAL_NEIGHBOURS];
     for (k, v) in keep.iter_mut().zip(&d[..m]) {
         *k = *v <= limit;
@@ -410,7 +410,7 @@ impl Cloud {
                 .copied()
                 .unwrap_or(0.0)
         };
-        cloud.surface_noise = 1.4826 * quantile(0.5);
+        cloud.surface_noise = crate::robust::MAD_TO_SIGMA * quantile(0.5);
         cloud.noise_cap = quantile(0.99).max(cloud.surface_noise);
         Ok(cloud)
     }

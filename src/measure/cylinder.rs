@@ -813,7 +813,7 @@ fn summarise(cloud: &Cloud, inliers: &[usize], cyl: &Cylinder, var_r: f64, ss: f
         .collect();
     let middle = abs.len() / 2;
     let scale = abs.select_nth_unstable(middle).1.to_owned();
-    let scale = 1.4826 * f64::from_bits(scale);
+    let scale = crate::robust::MAD_TO_SIGMA * f64::from_bits(scale);
     let mut inlier_indices: Vec<usize> = inliers.iter().map(|&pos| cloud.index_at(pos)).collect();
     inlier_indices.par_sort_unstable();
     CylinderFit {
@@ -928,7 +928,8 @@ pub(crate) fn refit_warm(
             .iter()
             .map(|&k| cyl.residual(&cloud.point_at(k)).abs())
             .collect();
-        let band = (3.0 * 1.4826 * upper_median(&mut abs)).max(threshold.min(1e-3));
+        let band =
+            (3.0 * crate::robust::MAD_TO_SIGMA * upper_median(&mut abs)).max(threshold.min(1e-3));
         let next: Vec<usize> = pool
             .iter()
             .copied()

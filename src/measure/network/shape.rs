@@ -337,7 +337,7 @@ pub(super) fn shape_departure(cloud: &Cloud, c: &Cylinder, idx: &[usize]) -> f64
     if abs.is_empty() {
         return f64::INFINITY;
     }
-    let sigma = 1.4826 * upper_median(&mut abs);
+    let sigma = MAD_TO_SIGMA * upper_median(&mut abs);
     let (mut m2, mut noise, mut bins) = (0.0, 0.0, 0usize);
     for &(n, sum) in sums.iter().filter(|s| s.0 >= 5) {
         let mean = sum / n as f64;
