@@ -1,4 +1,4 @@
-//! Issue 21, "Hostile input: no panic, no hang, no silent misread": each defect's reproducer
+//! Hostile input: no panic, no hang, no silent misread. Each defect's reproducer
 //! through the binary, with the exit code and the message the README documents (0 success, 1
 //! failure, 2 usage, 3 nothing found), and nothing half-written. The readers' own regression
 //! tests sit next to them (`io::ply`, `io::frames`, `io::colmap`, `profile`, `measure`).
