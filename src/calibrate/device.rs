@@ -135,20 +135,8 @@ fn cross_validate(
     for h in 0..2 {
         let keep: Vec<bool> = (0..n).map(|k| k % 2 == h).collect();
         let sub = input.model.with_images(&keep);
-        let det: Vec<Vec<Ellipse>> = input
-            .detections
-            .iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(d, _)| d.clone())
-            .collect();
-        let nb: Vec<Vec<NeighbourDetections>> = input
-            .neighbours
-            .iter()
-            .zip(&keep)
-            .filter(|(_, k)| **k)
-            .map(|(d, _)| d.clone())
-            .collect();
+        let det: Vec<Vec<Ellipse>> = kept(input.detections, &keep);
+        let nb: Vec<Vec<NeighbourDetections>> = kept(input.neighbours, &keep);
         log(&format!(
             "cross-validation: half {} ({} frames)",
             h + 1,
@@ -185,4 +173,15 @@ fn cross_validate(
         ratio,
         sigma_scaled_by: ratio.max(1.0),
     })
+}
+
+/// The items whose `keep` is true, in order (`items` may be shorter: frames without
+/// neighbours have an empty list).
+fn kept<T: Clone>(items: &[T], keep: &[bool]) -> Vec<T> {
+    items
+        .iter()
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|(d, _)| d.clone())
+        .collect()
 }
