@@ -168,7 +168,7 @@ fn elbow_tangent(ev: &Evidence, radius: f64, tail: f64) -> Option<(f64, f64)> {
         sum
     };
     let te_min = -tail;
-    let te_max = 0.05;
+    let te_max = ELBOW_TANGENT_BEYOND_END_M;
     // Coarse grid (θ 15°, te 4 mm, every bend radius), then around its best (θ 2.5°,
     // te 1 mm, the neighbouring radii). Ties go to the lowest index: the same answer on any
     // thread count.
@@ -177,24 +177,29 @@ fn elbow_tangent(ev: &Evidence, radius: f64, tail: f64) -> Option<(f64, f64)> {
             .map(|(theta, k, te)| (cost(theta, BEND_RADII[k] * radius, te), (theta, k, te)))
             .min_by(|a, b| a.0.total_cmp(&b.0))
     };
-    let te_steps = ((te_max - te_min) / 0.004).floor() as usize;
-    let coarse: Vec<(f64, usize, f64)> = (0..24)
+    let te_steps = ((te_max - te_min) / COARSE_TANGENT_STEP_M).floor() as usize;
+    let coarse: Vec<(f64, usize, f64)> = (0..COARSE_BEND_DIRECTIONS)
         .flat_map(|i| {
             (0..BEND_RADII.len()).flat_map(move |k| {
-                (0..=te_steps)
-                    .map(move |j| ((i as f64 * 15.0).to_radians(), k, te_min + j as f64 * 0.004))
+                (0..=te_steps).map(move |j| {
+                    (
+                        (i as f64 * COARSE_BEND_DIRECTION_DEG).to_radians(),
+                        k,
+                        te_min + j as f64 * COARSE_TANGENT_STEP_M,
+                    )
+                })
             })
         })
         .collect();
     let (_, (theta0, k0, te0)) = best_of(coarse)?;
-    let fine: Vec<(f64, usize, f64)> = (-4..=4)
+    let fine: Vec<(f64, usize, f64)> = (-FINE_STEPS..=FINE_STEPS)
         .flat_map(|i| {
             (k0.saturating_sub(1)..(k0 + 2).min(BEND_RADII.len())).flat_map(move |k| {
-                (-4..=4).map(move |j| {
+                (-FINE_STEPS..=FINE_STEPS).map(move |j| {
                     (
-                        theta0 + (i as f64 * 2.5).to_radians(),
+                        theta0 + (f64::from(i) * FINE_BEND_DIRECTION_DEG).to_radians(),
                         k,
-                        (te0 + j as f64 * 0.001).clamp(te_min, te_max),
+                        (te0 + f64::from(j) * FINE_TANGENT_STEP_M).clamp(te_min, te_max),
                     )
                 })
             })
@@ -203,6 +208,20 @@ fn elbow_tangent(ev: &Evidence, radius: f64, tail: f64) -> Option<(f64, f64)> {
     let (best, (_, _, te)) = best_of(fine)?;
     Some((te, best))
 }
+
+/// The elbow's tangent is sought up to this far beyond the end (m): the straight-part cut
+/// leaves the end within a few centimetres of where the surface leaves the straight pipe.
+const ELBOW_TANGENT_BEYOND_END_M: f64 = 0.05;
+/// The coarse grid of [`elbow_tangent`]: bend directions every 15° (24 around the axis) and
+/// tangent points every 4 mm, at every radius of [`BEND_RADII`].
+const COARSE_BEND_DIRECTIONS: usize = 24;
+const COARSE_BEND_DIRECTION_DEG: f64 = 15.0;
+const COARSE_TANGENT_STEP_M: f64 = 0.004;
+/// The fine grid around the coarse grid's best: ±4 steps of 2.5° and of 1 mm (a coarse cell
+/// and a half each way), at the best radius and its two neighbours.
+const FINE_STEPS: i32 = 4;
+const FINE_BEND_DIRECTION_DEG: f64 = 2.5;
+const FINE_TANGENT_STEP_M: f64 = 0.001;
 
 /// Gentlest cone of a concentric reducer (the radius's change per unit length): ASME B16.9's
 /// gentlest, 2 × 1½ and 3 × 2½ inch, narrow by 0.08–0.09; a straight pipe's noise fits a
