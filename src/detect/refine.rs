@@ -22,6 +22,32 @@ const STEP_PX: f64 = 0.25;
 /// thousandths of a pixel).
 const MAX_NORMALS: f64 = 360.0;
 
+/// Fewest normals sampled per round (small ellipses).
+const MIN_NORMALS: f64 = 24.0;
+/// Rounds of edge search and direct fit at most; they stop earlier once the centre moves by
+/// less than [`CENTRE_SETTLED_PX`] and the window has settled.
+const MAX_ROUNDS: usize = 5;
+/// The centre has settled when a round moves it by less than this (px).
+const CENTRE_SETTLED_PX: f64 = 0.01;
+/// The window has settled when the next one differs from it by at most this fraction.
+const WINDOW_SETTLED_FRACTION: f64 = 0.25;
+/// Fewest edge points a round must find (and at least half its normals).
+const MIN_EDGE_POINTS: usize = 8;
+/// The first round's half-window (px), and its limit as a fraction of the semi-minor axis: the
+/// plate's edge lies 0.3 radius outside the disc.
+const FIRST_SEARCH_PX: f64 = 2.0;
+const FIRST_SEARCH_OF_MINOR: f64 = 0.35;
+/// Later rounds' half-window in edge widths: the derivative peak of a blurred step falls to a
+/// quarter of its height at ±1.67 widths, and the window holds that with a margin.
+const SEARCH_EDGE_WIDTHS: f64 = 2.5;
+/// Later rounds' half-window at least this (px).
+const MIN_LATER_SEARCH_PX: f64 = 1.0;
+/// Any half-window within these (px), and at most this fraction of the semi-minor axis (short
+/// of the disc's far side).
+const MIN_SEARCH_PX: f64 = 0.8;
+const MAX_SEARCH_PX: f64 = 12.0;
+const MAX_SEARCH_OF_MINOR: f64 = 0.9;
+
 /// One round's edge points and what the profiles saw.
 #[derive(Clone, Debug, Default)]
 pub struct Profiles {
@@ -151,15 +177,15 @@ pub struct Refined {
 pub fn refine(img: &GrayImage, start: &Ellipse, polarity: f64, min_slope: f64) -> Option<Refined> {
     let mut e = *start;
     let mut profiles = Profiles::default();
-    let mut search = 2.0f64.min((0.35 * e.b).max(0.8));
-    for round in 0..5 {
-        let count = perimeter(&e).round().clamp(24.0, MAX_NORMALS) as usize;
+    let mut search = FIRST_SEARCH_PX.min((FIRST_SEARCH_OF_MINOR * e.b).max(MIN_SEARCH_PX));
+    for round in 0..MAX_ROUNDS {
+        let count = perimeter(&e).round().clamp(MIN_NORMALS, MAX_NORMALS) as usize;
         profiles = profile_edges(img, &e, polarity, search, min_slope, count);
-        let too_few = |p: &Profiles| p.points.len() < 8 || p.points.len() * 2 < count;
+        let too_few = |p: &Profiles| p.points.len() < MIN_EDGE_POINTS || p.points.len() * 2 < count;
         if round == 0 && too_few(&profiles) {
             // A blurred edge's derivative may be flat over the first window, its maximum at the
             // window's end (no point): try once with the widest window.
-            let wide = (0.9 * e.b).clamp(0.8, 12.0);
+            let wide = (MAX_SEARCH_OF_MINOR * e.b).clamp(MIN_SEARCH_PX, MAX_SEARCH_PX);
             if wide > search {
                 search = wide;
                 profiles = profile_edges(img, &e, polarity, search, min_slope, count);
@@ -175,9 +201,11 @@ pub fn refine(img: &GrayImage, start: &Ellipse, polarity: f64, min_slope: f64) -
         // The derivative peak of a blurred step falls to a quarter of its height at ±1.67 edge
         // widths: the window holds that with a margin (±2.5 widths, at least ±1 px), short of
         // the disc's far side (0.9 b).
-        let wanted = (2.5 * width).max(1.0).min((0.9 * e.b).clamp(0.8, 12.0));
-        let settled = (wanted - search).abs() <= 0.25 * search;
-        if round > 0 && moved < 0.01 && settled {
+        let wanted = (SEARCH_EDGE_WIDTHS * width)
+            .max(MIN_LATER_SEARCH_PX)
+            .min((MAX_SEARCH_OF_MINOR * e.b).clamp(MIN_SEARCH_PX, MAX_SEARCH_PX));
+        let settled = (wanted - search).abs() <= WINDOW_SETTLED_FRACTION * search;
+        if round > 0 && moved < CENTRE_SETTLED_PX && settled {
             break;
         }
         search = wanted;
@@ -409,7 +437,7 @@ mod tests {
     /// found), the points moved along their normals by noise of 0.05 px.
     fn profiles_on(e: &Ellipse, search: f64, seed: u64) -> Profiles {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let count = perimeter(e).round().clamp(24.0, MAX_NORMALS) as usize;
+        let count = perimeter(e).round().clamp(MIN_NORMALS, MAX_NORMALS) as usize;
         let mut p = Profiles {
             sampled: count,
             search,
