@@ -55,7 +55,7 @@ pub fn split_arcs(ang: &[f64]) -> Vec<std::ops::Range<usize>> {
         let d = wrap(ang[k + LAG] - ang[k - LAG]);
         let corner = d.abs() > CORNER_RAD;
         // A reversal of the turning sense, ignoring the small wiggles of near-straight runs.
-        let flips = d.abs() > 0.12 && sense != 0.0 && d.signum() != sense;
+        let flips = d.abs() > TURN_WIGGLE_RAD && sense != 0.0 && d.signum() != sense;
         if corner || flips {
             if k > start + 3 {
                 arcs.push(start..k + 1);
@@ -65,7 +65,7 @@ pub fn split_arcs(ang: &[f64]) -> Vec<std::ops::Range<usize>> {
             k += LAG + 1;
             continue;
         }
-        if d.abs() > 0.12 {
+        if d.abs() > TURN_WIGGLE_RAD {
             sense = d.signum();
         }
         k += 1;
@@ -115,6 +115,35 @@ const MIN_SHORT_CHAIN_TURN_RAD: f64 = 120.0 * std::f64::consts::PI / 180.0;
 /// Longest open chain also tried whole: the perimeter of a disc of radius 10 px.
 const SHORT_CHAIN_PX: usize = 64;
 
+/// A chain's ends, or a loop's, meet when they come within this many pixels (Chebyshev): the
+/// linking steps over a pixel or two where an edge is faint.
+const LOOP_GAP_PX: usize = 2;
+
+/// Turning (rad) of a chain that has gone nearly all the way round (80 % of a turn): it is
+/// closed, or a loop inside it is.
+const CLOSED_TURN_RAD: f64 = 5.0;
+
+/// Turning (rad) an open chain must reach before loops inside it are sought (about two thirds
+/// of a turn).
+const OPEN_CHAIN_LOOP_TURN_RAD: f64 = 4.0;
+
+/// A change of the gradient direction over two pixels below this (rad) is a wiggle of a
+/// near-straight run, not a turning sense.
+const TURN_WIGGLE_RAD: f64 = 0.12;
+
+/// Fewest pixels of an arc that proposes an ellipse (a conic needs five).
+const MIN_ARC_PX: usize = 6;
+
+/// A proposal's semi-minor axis may fall this far below the smallest wanted: the sub-pixel
+/// refinement that follows decides on the size.
+const PROPOSAL_MINOR_SLACK: f64 = 0.7;
+
+/// Two ellipses are one target when their centres lie within this fraction of the smaller
+/// semi-minor axis (at least [`SAME_CENTRE_MIN_PX`]) and their semi-axes within this fraction.
+const SAME_TARGET_TOLERANCE: f64 = 0.25;
+/// See [`SAME_TARGET_TOLERANCE`] (px).
+const SAME_CENTRE_MIN_PX: f64 = 1.0;
+
 /// Chebyshev distance between two pixels of a `w`-wide image.
 fn pixel_gap(a: u32, b: u32, w: usize) -> usize {
     let (a, b) = (a as usize, b as usize);
@@ -152,8 +181,9 @@ fn chain_loops(
             continue;
         }
         let mut best: Option<(usize, usize)> = None;
-        for dy in -2..=2isize {
-            for dx in -2..=2isize {
+        let reach = LOOP_GAP_PX as isize;
+        for dy in -reach..=reach {
+            for dx in -reach..=reach {
                 let q = p as isize + dy * w + dx;
                 let Ok(q) = u32::try_from(q) else { continue };
                 let Ok(k) = sorted.binary_search_by_key(&q, |&(pixel, _)| pixel) else {
@@ -163,7 +193,7 @@ fn chain_loops(
                 let gap = pixel_gap(p, q, g.width);
                 if i >= start
                     && i + MIN_LOOP_PX <= j + 1
-                    && gap <= 2
+                    && gap <= LOOP_GAP_PX
                     && best.is_none_or(|b| (gap, i) < b)
                 {
                     best = Some((gap, i));
@@ -171,7 +201,7 @@ fn chain_loops(
             }
         }
         if let Some((_, i)) = best
-            && loop_turning(&ang[i..=j]).abs() >= 5.0
+            && loop_turning(&ang[i..=j]).abs() >= CLOSED_TURN_RAD
         {
             loops.push((i, j));
             start = j + 1;
@@ -198,8 +228,8 @@ pub fn candidates(g: &Gradients, chains: &[Vec<u32>], limits: &CandidateLimits) 
         let turns = turning(&ang);
         // Closed: the ends meet, or the gradient turns all the way round (a chain may overrun
         // its start along a doubled edge).
-        let ends_meet = pixel_gap(chain[0], chain[n - 1], w) <= 2;
-        let closed = n >= MIN_LOOP_PX && (ends_meet || turns >= 5.0);
+        let ends_meet = pixel_gap(chain[0], chain[n - 1], w) <= LOOP_GAP_PX;
+        let closed = n >= MIN_LOOP_PX && (ends_meet || turns >= CLOSED_TURN_RAD);
         if closed {
             propose(g, chain, &ang, true, limits, &mut out);
         }
@@ -209,7 +239,7 @@ pub fn candidates(g: &Gradients, chains: &[Vec<u32>], limits: &CandidateLimits) 
             && if ends_meet {
                 turns >= 2.5 * std::f64::consts::PI
             } else {
-                turns >= 4.0
+                turns >= OPEN_CHAIN_LOOP_TURN_RAD
             };
         if loops {
             for (i, j) in chain_loops(g, chain, &ang, &mut sorted) {
@@ -253,7 +283,7 @@ fn propose(
     out: &mut Vec<Candidate>,
 ) {
     let w = g.width;
-    if arc.len() < 6 || turning(ang) < MIN_ARC_TURN_RAD {
+    if arc.len() < MIN_ARC_PX || turning(ang) < MIN_ARC_TURN_RAD {
         return;
     }
     let pts: Vec<Vector2<f64>> = arc
@@ -263,7 +293,7 @@ fn propose(
     let Some(e) = fit_ellipse_direct(&pts) else {
         return;
     };
-    if !(e.b >= 0.7 * limits.min_semi_minor
+    if !(e.b >= PROPOSAL_MINOR_SLACK * limits.min_semi_minor
         && e.a <= limits.max_semi_major
         && e.b >= limits.min_axis_ratio * e.a)
     {
@@ -321,10 +351,10 @@ fn propose(
 /// axis (at least 1 px) and semi-axes within 25 %.
 #[must_use]
 pub fn same(a: &Ellipse, b: &Ellipse) -> bool {
-    let tol = (0.25 * a.b.min(b.b)).max(1.0);
+    let tol = (SAME_TARGET_TOLERANCE * a.b.min(b.b)).max(SAME_CENTRE_MIN_PX);
     (a.centre() - b.centre()).norm() <= tol
-        && (a.a / b.a - 1.0).abs() <= 0.25
-        && (a.b / b.b - 1.0).abs() <= 0.25
+        && (a.a / b.a - 1.0).abs() <= SAME_TARGET_TOLERANCE
+        && (a.b / b.b - 1.0).abs() <= SAME_TARGET_TOLERANCE
 }
 
 #[cfg(test)]
