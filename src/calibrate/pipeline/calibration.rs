@@ -538,6 +538,13 @@ fn network_covariance(
     }
 }
 
+/// A correlation of the principal distance, principal point or affinity with another term
+/// beyond this is warned about: the network does not separate the two.
+const WARN_CORRELATION: f64 = 0.98;
+/// Largest roll of any frame from the mean (rad, 17°) below which the frames count as all
+/// one roll (landscape-only or portrait-only video keeps every roll within a few degrees).
+const SAME_ROLL_RAD: f64 = 0.3;
+
 /// Warnings about projective coupling: high correlations of c with the pose depth (a planar
 /// field without roll diversity) show as |ρ(u0, v0 or c, …)| near 1 among the intrinsics.
 fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String> {
@@ -565,7 +572,7 @@ fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String
     };
     for i in 0..10 {
         for j in 0..i {
-            if (geometric(i) || geometric(j)) && corr[(i, j)].abs() > 0.98 {
+            if (geometric(i) || geometric(j)) && corr[(i, j)].abs() > WARN_CORRELATION {
                 let why = if motions_untimed && traded_by_motions(i) && traded_by_motions(j) {
                     "the frames' motions, with no neighbouring video frames to tie them to time, leave a rate common to all frames that trades with both; their σ carries it (extract the frames with `pipemeasure frames` to keep their neighbours)"
                 } else {
@@ -599,7 +606,7 @@ fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String
                 v.x.atan2(v.y).abs()
             })
             .fold(0.0f64, f64::max);
-        if largest < 0.3 {
+        if largest < SAME_ROLL_RAD {
             out.push(format!(
                 "every frame has about the same roll (largest rotation about the viewing axis from the mean: {:.0}°): without portrait and landscape frames the principal point and the distortion couple with the poses; the profile may be wrong even where the residuals are small",
                 largest.to_degrees()
@@ -609,6 +616,7 @@ fn geometry_warnings(selected: &Selected, p: &Problem<BrownModel>) -> Vec<String
     out
 }
 
+/// The ten intrinsics of an adjustment (the readout time of a rolling-shutter model left out).
 pub(super) fn intrinsics_of(p: &Problem<BrownModel>) -> Intrinsics {
     let mut a = [0.0; 10];
     a.copy_from_slice(&p.global[..10]);

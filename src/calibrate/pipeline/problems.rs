@@ -277,6 +277,12 @@ pub fn adjust_feature_tracks(
     Ok((summary, intrinsics_of(&problem), problem.cam_from_world))
 }
 
+/// The feature adjustment's Huber threshold in units of the tracks' robust reprojection σ,
+/// and that σ's floor (px), so that tracks located nearly exactly do not turn every residual
+/// into an outlier.
+const FEATURE_HUBER_SIGMAS: f64 = 3.0;
+const MIN_FEATURE_SIGMA_PX: f64 = 0.1;
+
 /// Adjusts a feature-track problem (its fixed parameters already set) with a Huber loss at
 /// 3·σ (σ the tracks' robust reprojection σ, at least 0.1 px) and puts the result back in
 /// the frame of its starting points (free-network datum): the tail shared by
@@ -292,7 +298,7 @@ pub(crate) fn adjust_tracks_free_network<M: crate::adjust::CameraModel>(
 ) -> Result<AdjustSummary, CalibrateError> {
     let reference = problem.points.clone();
     let adjust = AdjustConfig {
-        loss: Loss::Huber(3.0 * sigma_px.max(0.1)),
+        loss: Loss::Huber(FEATURE_HUBER_SIGMAS * sigma_px.max(MIN_FEATURE_SIGMA_PX)),
         ..*adjust
     };
     let summary = crate::adjust::bundle_adjust(problem, &adjust)?;
