@@ -8,7 +8,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use common::pipemeasure;
+use common::{pipemeasure, pipemeasure_with_profiles as run};
 use pipemeasure::profile::Profile;
 use pipemeasure::sim::devices::{P30, preset_camera};
 
@@ -51,14 +51,6 @@ fn simulate_site(dir: &Path) -> (f64, [f64; 3]) {
     let a = pipe["axis_point"].as_array().unwrap();
     let axis = [0, 1, 2].map(|k| a[k].as_f64().unwrap() + OFFSET[k]);
     (pipe["radius"].as_f64().unwrap(), axis)
-}
-
-fn run(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    pipemeasure(
-        dir,
-        args,
-        &[("PIPEMEASURE_CALIBRATIONS", common::CALIBRATIONS)],
-    )
 }
 
 #[test]

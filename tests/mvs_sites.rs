@@ -11,7 +11,7 @@ mod common;
 
 use std::path::Path;
 
-use common::pipemeasure;
+use common::{pipemeasure, pipemeasure_with_profiles as run};
 use serde_json::Value;
 
 /// Site coordinates: the TLS list and scan carry a large offset.
@@ -41,14 +41,6 @@ fn simulate(dir: &Path, seed: &str, dense: &[&str]) -> Value {
     let (code, _, stderr) = pipemeasure(dir, &args, &[]);
     assert_eq!(code, 0, "{stderr}");
     serde_json::from_str(&std::fs::read_to_string(dir.join("site/truth.json")).unwrap()).unwrap()
-}
-
-fn run(dir: &Path, args: &[&str]) -> (i32, String, String) {
-    pipemeasure(
-        dir,
-        args,
-        &[("PIPEMEASURE_CALIBRATIONS", common::CALIBRATIONS)],
-    )
 }
 
 /// A truth pipe: (radius, axis point in TLS coordinates).

@@ -48,6 +48,11 @@ pub fn pipemeasure(
     )
 }
 
+/// [`pipemeasure`] with the repository's device profiles ([`CALIBRATIONS`]).
+pub fn pipemeasure_with_profiles(dir: &std::path::Path, args: &[&str]) -> (i32, String, String) {
+    pipemeasure(dir, args, &[("PIPEMEASURE_CALIBRATIONS", CALIBRATIONS)])
+}
+
 /// Whether `program ARG` runs; under CI (`CI=true`) its absence is a failure, not a skip (the
 /// CI script installs it with `install`).
 pub fn program_available(program: &str, arg: &str, install: &str) -> bool {
