@@ -382,14 +382,23 @@ fn normal_coverage(
     cos_max: f64,
 ) -> f64 {
     let (e1, e2) = cyl.cross_section_basis();
-    let mut arc = ArcBins::new();
-    for &k in idx {
-        if supports(cloud, k, cyl, threshold, cos_max).is_some() {
-            arc.add(azimuth(&cyl.radial(&cloud.point_at(k)), &e1, &e2));
-        }
-    }
-    arc.filled()
+    // Counts per chunk, added up: integers, so the same bins on any number of threads.
+    idx.par_chunks(COVERAGE_CHUNK)
+        .map(|chunk| {
+            let mut arc = ArcBins::new();
+            for &k in chunk {
+                if supports(cloud, k, cyl, threshold, cos_max).is_some() {
+                    arc.add(azimuth(&cyl.radial(&cloud.point_at(k)), &e1, &e2));
+                }
+            }
+            arc
+        })
+        .reduce(ArcBins::new, ArcBins::merged)
+        .filled()
 }
+
+/// Points per parallel task of [`normal_coverage`].
+const COVERAGE_CHUNK: usize = 4096;
 
 /// The azimuth (rad, in [−π, π]) of the unit radial vector `u` in the cross-section basis
 /// `(e1, e2)`.
@@ -412,6 +421,14 @@ impl ArcBins {
         let turn = a / std::f64::consts::TAU + 0.5;
         let bin = ((turn * COVERAGE_BINS as f64) as usize).min(COVERAGE_BINS - 1);
         self.0[bin] += 1;
+    }
+
+    /// Both counts together.
+    fn merged(mut self, other: Self) -> Self {
+        for (a, b) in self.0.iter_mut().zip(other.0) {
+            *a += b;
+        }
+        self
     }
 
     /// The arc (rad) the counted azimuths fill: the number of filled bins (each holding at
@@ -900,8 +917,9 @@ pub(crate) fn refit_warm(
     inliers.par_sort_unstable();
     let mut result = None;
     for _ in 0..10 {
+        // An order-keeping parallel filter: the same list on any number of threads.
         let next: Vec<usize> = pool
-            .iter()
+            .par_iter()
             .copied()
             .filter(|&k| supports(cloud, k, &cyl, threshold, cos_max).is_some())
             .collect();
@@ -925,13 +943,13 @@ pub(crate) fn refit_warm(
     // which all lie outside it.
     for _ in 0..10 {
         let mut abs: Vec<f64> = inliers
-            .iter()
+            .par_iter()
             .map(|&k| cyl.residual(&cloud.point_at(k)).abs())
             .collect();
         let band =
             (3.0 * crate::robust::MAD_TO_SIGMA * upper_median(&mut abs)).max(threshold.min(1e-3));
         let next: Vec<usize> = pool
-            .iter()
+            .par_iter()
             .copied()
             .filter(|&k| {
                 supports(cloud, k, &cyl, threshold, cos_max).is_some()

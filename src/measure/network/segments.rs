@@ -55,8 +55,9 @@ pub(super) fn pieces_of(
 ) -> Vec<Piece> {
     let along =
         |k: usize, c: &Cylinder| (cloud.point(k) + cloud.origin - c.point).dot(&c.direction);
-    let mut order: Vec<(f64, usize)> = inliers.iter().map(|&k| (along(k, cyl), k)).collect();
-    order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    let mut order: Vec<(f64, usize)> = inliers.par_iter().map(|&k| (along(k, cyl), k)).collect();
+    // A total order (ties broken by index): the same on any number of threads.
+    order.par_sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
     let mut out = Vec::new();
     let patches = Patches::new(cloud, cyl, inliers);
     let runs = order
@@ -72,7 +73,7 @@ pub(super) fn pieces_of(
             continue;
         }
         let mut idx: Vec<usize> = run.iter().map(|r| r.1).collect();
-        idx.sort_unstable();
+        idx.par_sort_unstable();
         // Warm from the candidate's fit: a run that is (nearly) all its inliers settles at once.
         let rf = refit_straight(cloud, &idx, cyl, inliers, config);
         let piece = match rf {

@@ -88,17 +88,18 @@ impl Patches {
     pub(super) fn new(cloud: &Cloud, c: &Cylinder, inliers: &[usize]) -> Self {
         let (radius, dense) = patch_radius(cloud, c, inliers);
         let mut abs: Vec<f64> = inliers
-            .iter()
+            .par_iter()
             .map(|&k| c.residual(&(cloud.point(k) + cloud.origin)).abs())
             .collect();
         let band = (3.0 * MAD_TO_SIGMA * upper_median(&mut abs)).max(MIN_BAND_M);
         let along = |p: &Vector3<f64>| (p + cloud.origin - c.point).dot(&c.direction);
+        // Minimum and maximum are exact in any order: the same span on any number of threads.
+        let none = || (f64::INFINITY, f64::NEG_INFINITY);
         let (t0, t1) = inliers
-            .iter()
+            .par_iter()
             .map(|&k| along(&cloud.point(k)))
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), t| {
-                (a.min(t), b.max(t))
-            });
+            .fold(none, |(a, b), t| (a.min(t), b.max(t)))
+            .reduce(none, |x, y| (x.0.min(y.0), x.1.max(y.1)));
         let local = Cylinder {
             point: c.point - cloud.origin,
             ..*c
