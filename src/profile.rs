@@ -192,11 +192,11 @@ pub enum ProfileError {
     #[error(transparent)]
     Write(#[from] WriteError),
     /// A profile exists where one would be written.
-    #[error("{} exists; pass --force to replace it (the old one is kept as a numbered backup, {})", .0.display(), backup_path(.0, 1).display())]
+    #[error("{} exists; replacing it keeps the old one as a numbered backup, {}", .0.display(), backup_path(.0, 1).display())]
     Exists(PathBuf),
     /// A device name that is not a plain name.
     #[error(
-        "`{0}` is not a device name: a name has no path separator, does not start with `.` and does not end with `.json` (a profile is written as calibrations/NAME.json; write elsewhere with --out PATH)"
+        "`{0}` is not a device name: a name has no path separator, does not start with `.` and does not end with `.json` (a profile is written as calibrations/NAME.json; give a path to write elsewhere)"
     )]
     NotAName(String),
 }

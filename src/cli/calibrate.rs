@@ -325,7 +325,8 @@ fn check_point_report(
 /// check points (read: a bad file fails first), and every destination writable. Returns the
 /// check points and the profile's path.
 fn preflight(args: &Args) -> Result<(Option<Vec<TlsTarget>>, PathBuf)> {
-    validate_device_name(&args.device).map_err(|e| usage(format!("--device: {e}")))?;
+    validate_device_name(&args.device)
+        .map_err(|e| usage(format!("--device: {}", super::hints::said(&e))))?;
     match &args.video {
         Some(video) if !video.is_file() => bail!("--video {}: no such file", video.display()),
         None if !args.frames().is_dir() => {

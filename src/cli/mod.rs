@@ -23,6 +23,7 @@ mod detect;
 mod experiments;
 mod fit_cylinder;
 mod frames;
+mod hints;
 mod matching;
 mod measure;
 mod pipes;
@@ -145,18 +146,24 @@ pub fn main() -> ExitCode {
 }
 
 /// The error and its causes joined by `: `, each cause once: a cause whose text the message
-/// already holds (an error that prints its source, as many do) is not repeated.
+/// already holds (an error that prints its source, as many do) is not repeated. Each cause in
+/// the command line's words ([`hints::on_the_command_line`]: the options that give an input),
+/// also where an outer error already printed it in the library's.
 fn error_message(err: &anyhow::Error) -> String {
     let mut message = String::new();
     for cause in err.chain() {
         let text = cause.to_string();
+        let said = hints::on_the_command_line(cause);
         if message.contains(&text) {
+            if let Some(said) = said {
+                message = message.replacen(&text, &said, 1);
+            }
             continue;
         }
         if !message.is_empty() {
             message.push_str(": ");
         }
-        message.push_str(&text);
+        message.push_str(&said.unwrap_or(text));
     }
     message
 }

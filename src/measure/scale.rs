@@ -83,7 +83,7 @@ pub enum ScaleError {
     Degenerate(f64),
     /// More TLS targets than the association handles.
     #[error(
-        "{found} TLS targets: the automatic association handles at most {max} (its time grows faster than the square of the list); give this site's targets with --tls-ids or a shorter list"
+        "{found} TLS targets: the automatic association handles at most {max} (its time grows faster than the square of the list); select this site's targets or give a shorter list"
     )]
     TooManyTls {
         /// TLS targets given.

@@ -47,7 +47,7 @@ pub const WARN_MOTION_FRACTION: f64 = 0.005;
 pub enum VideoError {
     /// `ffmpeg` or `ffprobe` is not on PATH.
     #[error(
-        "`{0}` is not installed or not on PATH (Debian/Ubuntu: `apt-get install -y ffmpeg`); or extract the frames yourself and pass --frames DIR"
+        "`{0}` is not installed or not on PATH (Debian/Ubuntu: `apt-get install -y ffmpeg`); or extract the frames yourself"
     )]
     NotInstalled(&'static str),
     /// ffmpeg/ffprobe refused the file.

@@ -10,12 +10,14 @@
 //! (`OUT/dense/fused.ply`, `OUT/sparse`, `OUT/frames`, `OUT/tls_targets.csv`): each is searched
 //! for in the cloud's folder and up to two folders above it, nearest first.
 
+mod error;
 mod report;
 mod retriangulate;
 mod scaling;
 mod uncertainty;
 mod workspace;
 
+pub use error::{SiteError, SiteInput};
 pub use report::{AxisOut, ChoiceOut, PipeOut, ScaleTargetOut, SiteReport, choice_message};
 pub use retriangulate::{RetriangulatedCloud, retriangulate_cloud};
 pub use scaling::{Ray, SiteScale, row_targets, scale_from_targets};
@@ -28,74 +30,15 @@ use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::cylinder::{CylinderConfig, CylinderError};
+use super::cylinder::CylinderConfig;
 use super::pipe::{
     PipeMeasurement, Reference, Region, Scaling, measure_pipe, reference_fit, segment_reference,
 };
-use super::scale::ScaleError;
-use crate::calibrate::pipeline::CalibrateError;
 use crate::calibrate::views::FrameCamera;
-use crate::detect::DetectFilesError;
-use crate::io::ReadError;
 use crate::io::colmap::{ImageId, Reconstruction};
-use crate::profile::ProfileError;
 use report::{pipe_reports, views_of};
 use retriangulate::as_given;
 use uncertainty::pose_radius_std;
-
-/// Why the site could not be measured.
-#[derive(Debug, thiserror::Error)]
-#[non_exhaustive]
-pub enum SiteError {
-    /// An input is missing or does not fit the others (the message says which and why).
-    #[error("{0}")]
-    Input(String),
-    /// A file could not be read.
-    #[error(transparent)]
-    Read(#[from] ReadError),
-    /// The device profile.
-    #[error(transparent)]
-    Profile(#[from] ProfileError),
-    /// The poses could not be re-adjusted to the profile.
-    #[error("Algorithm 1 on {}: {source}", path.display())]
-    Poses {
-        /// The model.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: CalibrateError,
-    },
-    /// Detection in the frames.
-    #[error("detecting the targets of the model's frames: {0}")]
-    Detect(#[from] DetectFilesError),
-    /// The scale.
-    #[error("scale from {}: {source}", path.display())]
-    Scale {
-        /// The TLS target list.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: ScaleError,
-    },
-    /// The pipe network.
-    #[error("the pipe network of {}: {source}", path.display())]
-    Network {
-        /// The cloud.
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: super::network::NetworkError,
-    },
-    /// The pipe fit.
-    #[error("fitting the pipe in {}: {source}", path.display())]
-    Fit {
-        /// The cloud (or scan).
-        path: PathBuf,
-        /// Why.
-        #[source]
-        source: CylinderError,
-    },
-}
 
 /// What the user gave (paths not given are searched for next to the cloud).
 #[derive(Clone, Debug, Default)]
@@ -187,9 +130,7 @@ pub fn scaled_cloud(
     let (scaling, targets) = match request.scale {
         Some(s) if s.is_finite() && s > 0.0 => (Scaling::Given(s), None),
         Some(s) => {
-            return Err(SiteError::Input(format!(
-                "--scale {s}: must be a positive number"
-            )));
+            return Err(SiteError::BadScale(s));
         }
         None => {
             let t = scale_from_targets(request, log, progress)?;

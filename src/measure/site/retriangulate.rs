@@ -24,7 +24,7 @@ use crate::io::colmap::{ImageId, Reconstruction};
 ///
 /// # Errors
 ///
-/// [`SiteError::Input`] for an image index or id the model does not have.
+/// [`SiteError`] for an image index or id the model does not have.
 pub fn retriangulate_cloud(
     points: &[Vector3<f64>],
     visibility: &[Vec<u32>],
@@ -36,18 +36,13 @@ pub fn retriangulate_cloud(
     // Per position in the images file: the model's camera and pose, and the new camera.
     let mut views = Vec::with_capacity(image_order.len());
     for id in image_order {
-        let image = model.images.get(id).ok_or_else(|| {
-            SiteError::Input(format!(
-                "the images file names image {} twice or not at all",
-                id.0
-            ))
-        })?;
+        let image = model.images.get(id).ok_or(SiteError::ImageOrder(id.0))?;
         let cam = model
             .cameras
             .get(&image.camera_id)
-            .ok_or_else(|| SiteError::Input(format!("image {} has no camera", id.0)))?;
+            .ok_or(SiteError::ImageWithoutCamera(id.0))?;
         let original = brown_from_colmap(cam)
-            .map_err(|e| SiteError::Input(format!("the model's camera: {e}")))?
+            .map_err(SiteError::Camera)?
             .camera
             .intrinsics;
         let new = cameras.iter().position(|(i, _)| i == id);
@@ -59,9 +54,10 @@ pub fn retriangulate_cloud(
         .flatten()
         .find(|&&k| k as usize >= n_views)
     {
-        return Err(SiteError::Input(format!(
-            "fused.ply.vis names image {bad} but the model has {n_views} images"
-        )));
+        return Err(SiteError::Visibility {
+            image: *bad,
+            images: n_views,
+        });
     }
     let out: Vec<Option<(Vector3<f64>, Vec<Ray>)>> = points
         .par_iter()

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::{Point3, Vector2};
 
 use super::workspace::{is_model, model_image_size, resolve, site_intrinsics};
-use super::{SiteError, SiteRequest};
+use super::{SiteError, SiteInput, SiteRequest};
 use crate::adjust::AdjustConfig;
 use crate::calibrate::matching::MatchConfig;
 use crate::calibrate::poses::{
@@ -161,7 +161,7 @@ pub(super) fn median_angular_speed_deg_s(motions: &[crate::camera::rolling::Moti
     speeds[speeds.len() / 2]
 }
 
-/// The TLS targets of the list, only those of `--tls-ids` when given; at least two.
+/// The TLS targets of the list, only those the request selects when it does; at least two.
 fn selected_tls_targets(
     request: &SiteRequest,
     tls_path: &Path,
@@ -170,24 +170,20 @@ fn selected_tls_targets(
     if !request.tls_ids.is_empty() {
         for id in &request.tls_ids {
             if !tls.iter().any(|t| &t.id == id) {
-                return Err(SiteError::Input(format!(
-                    "--tls-ids: target `{id}` is not in {} (its ids: {})",
-                    tls_path.display(),
-                    tls.iter()
-                        .map(|t| t.id.as_str())
-                        .collect::<Vec<_>>()
-                        .join(", ")
-                )));
+                return Err(SiteError::UnknownTlsId {
+                    id: id.clone(),
+                    path: tls_path.to_path_buf(),
+                    known: tls.iter().map(|t| t.id.clone()).collect(),
+                });
             }
         }
         tls.retain(|t| request.tls_ids.contains(&t.id));
     }
     if tls.len() < 2 {
-        return Err(SiteError::Input(format!(
-            "{}: {} TLS target(s); the scale needs at least two",
-            tls_path.display(),
-            tls.len()
-        )));
+        return Err(SiteError::TooFewTlsTargets {
+            path: tls_path.to_path_buf(),
+            found: tls.len(),
+        });
     }
     Ok(tls)
 }
@@ -244,41 +240,33 @@ pub fn scale_from_targets(
 ) -> Result<SiteScale, SiteError> {
     let cloud = &request.cloud;
     let Some(device) = request.device.as_deref() else {
-        return Err(SiteError::Input(
-            "--device NAME is needed to scale the cloud from the targets (or give --scale)".into(),
-        ));
+        return Err(SiteError::NoDevice);
     };
     let sfm = resolve(
         request.sfm.as_ref(),
         cloud,
         &["sparse", "sparse/0"],
         is_model,
-        "SfM model",
-        "--sfm",
+        SiteInput::Sfm,
     )?;
     let frames = resolve(
         request.frames.as_ref(),
         cloud,
         &["images", "frames"],
         Path::is_dir,
-        "frames folder",
-        "--frames",
+        SiteInput::Frames,
     )?;
     let tls_path = resolve(
         request.tls_targets.as_ref(),
         cloud,
         &["tls_targets.csv"],
         Path::is_file,
-        "TLS target list",
-        "--tls-targets",
+        SiteInput::TlsTargets,
     )?;
     let tls = selected_tls_targets(request, &tls_path)?;
     let model = Reconstruction::read(&sfm)?;
     if model.images.is_empty() {
-        return Err(SiteError::Input(format!(
-            "the model {} has no registered images",
-            sfm.display()
-        )));
+        return Err(SiteError::NoImages(sfm));
     }
     let (profile_path, profile) = load_device(device)?;
     let (intrinsics, undistorted) =

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::SiteError;
+use super::{SiteError, SiteInput};
 use crate::camera::convert::{ColmapModel, brown_from_colmap};
 use crate::camera::{BrownCamera, Intrinsics};
 use crate::io::colmap::Reconstruction;
@@ -35,24 +35,21 @@ pub(super) fn resolve(
     cloud: &Path,
     names: &[&str],
     ok: impl Fn(&Path) -> bool,
-    what: &str,
-    flag: &str,
+    input: SiteInput,
 ) -> Result<PathBuf, SiteError> {
     if let Some(p) = given {
         if !p.exists() {
-            return Err(SiteError::Input(format!(
-                "{flag} {}: not found",
-                p.display()
-            )));
+            return Err(SiteError::NotFound {
+                input,
+                path: p.clone(),
+            });
         }
         return Ok(p.clone());
     }
-    search_up(cloud, names, ok).ok_or_else(|| {
-        SiteError::Input(format!(
-            "no {what} found next to {} or up to two folders above it (looked for {}); give it with {flag}",
-            cloud.display(),
-            names.join(", ")
-        ))
+    search_up(cloud, names, ok).ok_or_else(|| SiteError::NotBeside {
+        input,
+        cloud: cloud.to_path_buf(),
+        looked_for: names.iter().map(|n| (*n).to_owned()).collect(),
     })
 }
 
@@ -60,10 +57,10 @@ pub(super) fn resolve(
 ///
 /// # Errors
 ///
-/// [`SiteError::Input`] for a model without a camera.
+/// [`SiteError::NoCamera`] for a model without a camera.
 pub fn model_image_size(model: &Reconstruction) -> Result<(u32, u32), SiteError> {
     let Some(camera) = model.cameras.values().next() else {
-        return Err(SiteError::Input("the model has no camera".into()));
+        return Err(SiteError::NoCamera);
     };
     Ok((
         u32::try_from(camera.width).unwrap_or(u32::MAX),
@@ -77,8 +74,8 @@ pub fn model_image_size(model: &Reconstruction) -> Result<(u32, u32), SiteError>
 ///
 /// # Errors
 ///
-/// [`SiteError::Input`] when the profile is for another aspect ratio, or the model's pinhole
-/// camera is not the profile's.
+/// [`SiteError::AspectRatio`] when the profile is for another aspect ratio,
+/// [`SiteError::NotUndistortedWithDevice`] when the model's pinhole camera is not the profile's.
 pub fn site_intrinsics(
     device: &str,
     profile_path: &Path,
@@ -86,21 +83,19 @@ pub fn site_intrinsics(
     model: &Reconstruction,
 ) -> Result<(Intrinsics, bool), SiteError> {
     let Some(cam) = model.cameras.values().next() else {
-        return Err(SiteError::Input("the model has no camera".into()));
+        return Err(SiteError::NoCamera);
     };
     let (w, h) = model_image_size(model)?;
     if u64::from(profile_cam.width) * u64::from(h) != u64::from(profile_cam.height) * u64::from(w) {
-        return Err(SiteError::Input(format!(
-            "device {device} ({}) is for {}x{} frames but the model's camera is {w}x{h}: another aspect ratio, so these frames are not from this device",
-            profile_path.display(),
-            profile_cam.width,
-            profile_cam.height
-        )));
+        return Err(SiteError::AspectRatio {
+            device: device.to_owned(),
+            profile: profile_path.to_path_buf(),
+            profile_size: (profile_cam.width, profile_cam.height),
+            model_size: (w, h),
+        });
     }
     let scaled = profile_cam.scaled(w, h);
-    let model_cam = brown_from_colmap(cam)
-        .map_err(|e| SiteError::Input(format!("the model's camera: {e}")))?
-        .camera;
+    let model_cam = brown_from_colmap(cam).map_err(SiteError::Camera)?.camera;
     // COLMAP's undistorter (and `pipemeasure undistort`) write pinhole cameras; a model with a
     // distortion model (even one estimated as zero, or never refined) has the frames as recorded.
     let pinhole = matches!(cam.model, ColmapModel::Pinhole | ColmapModel::SimplePinhole);
@@ -109,12 +104,12 @@ pub fn site_intrinsics(
     }
     let rel = (model_cam.intrinsics.c / scaled.intrinsics.c - 1.0).abs();
     if rel > 0.05 {
-        return Err(SiteError::Input(format!(
-            "the model's pinhole camera has a principal distance of {:.1} px, device {device} {:.1} px at {w}x{h} ({:.0} % apart): these frames were not undistorted with this device's profile",
-            model_cam.intrinsics.c,
-            scaled.intrinsics.c,
-            100.0 * rel
-        )));
+        return Err(SiteError::NotUndistortedWithDevice {
+            device: device.to_owned(),
+            model_c: model_cam.intrinsics.c,
+            device_c: scaled.intrinsics.c,
+            size: (w, h),
+        });
     }
     Ok((model_cam.intrinsics, true))
 }
