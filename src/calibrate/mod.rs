@@ -7,6 +7,7 @@ pub mod check_points;
 pub mod checks;
 pub mod device;
 pub mod eccentricity;
+pub mod input;
 pub mod jackknife;
 pub mod matching;
 pub mod neighbours;

@@ -6,27 +6,24 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
+use pipemeasure::calibrate::Calibration;
 use pipemeasure::calibrate::check_points::{CheckPointReport, check_points};
-use pipemeasure::calibrate::checks::ImageMap;
+use pipemeasure::calibrate::input::{frame_size, listed_frames, model_frames, reconstruct_frames};
 use pipemeasure::calibrate::neighbours::detect_neighbours;
 use pipemeasure::calibrate::network::ColmapNetwork;
 use pipemeasure::calibrate::network::colmap_network;
 use pipemeasure::calibrate::pipeline::{
     CalibrateConfig, CalibrationInput, NeighbourDetections, ReadoutStart,
 };
-use pipemeasure::calibrate::{Calibration, CrossValidation};
 use pipemeasure::calibrate::{DeviceCalibration, DeviceConfig, calibrate_device};
 use pipemeasure::detect::DetectConfig;
 use pipemeasure::io::atomic::{StagedDir, check_writable_dir};
-use pipemeasure::io::colmap::{
-    ColmapOptions, ColmapProgress, ModelFormat, Reconstruction, run_colmap_sfm_with,
-};
-use pipemeasure::io::sidecar::FramesSidecar;
+use pipemeasure::io::colmap::{ColmapOptions, ColmapProgress, ModelFormat, Reconstruction};
 use pipemeasure::io::tls::TlsTarget;
 use pipemeasure::profile::CalibrationSource;
 use pipemeasure::profile::{CALIBRATIONS_DIR, Profile, backup_path, validate_device_name};
 use pipemeasure::report::calibration::{
-    CALIBRATION_REPORT_SCHEMA, CalibrationReport, intrinsics_table, write_calibration_report,
+    CalibrationReport, intrinsics_table, write_calibration_report,
 };
 use pipemeasure::sim::truth::simulated_provenance;
 
@@ -161,20 +158,8 @@ fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
             work.display()
         );
     }
-    // A video's neighbour frames (in FRAMES/neighbours/, listed in frames.json) are not
-    // reconstructed: COLMAP reads the folder recursively, so it gets the frames' list.
-    let sidecar = args.frames().join("frames.json");
-    let list: Option<Vec<String>> = if sidecar.is_file() {
-        Some(
-            FramesSidecar::read(&sidecar)?
-                .frames
-                .into_iter()
-                .map(|f| f.name)
-                .collect(),
-        )
-    } else {
-        None
-    };
+    // Only the frames (not a video's neighbours): their count is the registration's goal.
+    let listed = listed_frames(args.frames())?.map(|l| l.len());
     let bar = progress::bar(0, "COLMAP", quiet);
     let report = |p: ColmapProgress| match p {
         ColmapProgress::Features { done, of } => {
@@ -189,7 +174,7 @@ fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
         }
         ColmapProgress::Registered { images } => {
             bar.set_message("COLMAP images registered");
-            if let Some(n) = list.as_ref().map(Vec::len) {
+            if let Some(n) = listed {
                 bar.set_length(n as u64);
             }
             bar.set_position(images as u64);
@@ -200,32 +185,9 @@ fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
         max_image_size: args.colmap_image_size,
         ..ColmapOptions::default()
     };
-    let model = run_colmap_sfm_with(args.frames(), &work, list.as_deref(), &options, &report)
-        .with_context(|| "COLMAP sparse reconstruction");
+    let model = reconstruct_frames(args.frames(), &work, &options, &report);
     bar.finish_and_clear();
-    model
-}
-
-/// The frame size of the model's (single) camera, checked against every image.
-fn image_size(model: &Reconstruction) -> Result<(u32, u32)> {
-    let mut sizes = model.cameras.values().map(|c| (c.width, c.height));
-    let Some(first) = sizes.next() else {
-        bail!("the SfM model has no camera")
-    };
-    if let Some(other) = sizes.find(|s| *s != first) {
-        bail!(
-            "the SfM model has cameras of different sizes ({}x{} and {}x{}): calibrate one device \
-             at one frame size",
-            first.0,
-            first.1,
-            other.0,
-            other.1
-        );
-    }
-    Ok((
-        u32::try_from(first.0).context("camera width")?,
-        u32::try_from(first.1).context("camera height")?,
-    ))
+    Ok(model?)
 }
 
 /// The detections in the frames' neighbours in the video, from `FRAMES/frames.json` when
@@ -256,28 +218,6 @@ fn neighbour_detections(
     .context("detecting the targets of the frames' neighbours")?;
     progress.finish_and_clear();
     Ok(detected)
-}
-
-/// Every model image must be a file in the frames folder.
-fn check_frames(model: &Reconstruction, frames: &Path) -> Result<Vec<String>> {
-    let names: Vec<String> = model.images.values().map(|i| i.name.clone()).collect();
-    let missing: Vec<&String> = names.iter().filter(|n| !frames.join(n).is_file()).collect();
-    if !missing.is_empty() {
-        bail!(
-            "{} of the model's {} images are not in {} (first: {}): is --frames the folder the \
-             model was built from?",
-            missing.len(),
-            names.len(),
-            frames.display(),
-            missing
-                .iter()
-                .take(3)
-                .map(|s| s.as_str())
-                .collect::<Vec<_>>()
-                .join(", ")
-        );
-    }
-    Ok(names)
 }
 
 /// The loop's configuration from the options: the iteration cap and the rolling shutter
@@ -383,11 +323,8 @@ fn preflight(args: &Args) -> Result<(Option<Vec<TlsTarget>>, PathBuf)> {
 /// What `calibrate` prints when it is done.
 struct Outcome<'a> {
     args: &'a Args,
-    cal: &'a Calibration,
+    device: &'a DeviceCalibration,
     high: &'a [(String, String, f64)],
-    uncertainty: &'a ImageMap,
-    cross: Option<&'a CrossValidation>,
-    warnings: &'a [String],
     check_report: Option<&'a CheckPointReport>,
     colmap: Option<&'a ColmapNetwork>,
     out: &'a Path,
@@ -397,25 +334,26 @@ struct Outcome<'a> {
 /// Prints the calibration's summary: the fit, the intrinsics, the checks, the warnings and
 /// where everything was written.
 fn print_outcome(o: &Outcome<'_>) -> Result<()> {
+    let cal = &o.device.calibration;
     outln!(
         "calibrated {} from {} frames: {} targets, {} observations, σ0 {:.4} px, residual RMS {:.4} px",
         o.args.device,
-        o.cal.frame_names.len(),
-        o.cal.points.len(),
-        o.cal.observations.len(),
-        o.cal.sigma0,
-        o.cal.residual_rms_px
+        cal.frame_names.len(),
+        cal.points.len(),
+        cal.observations.len(),
+        cal.sigma0,
+        cal.residual_rms_px
     );
-    out!("{}", intrinsics_table(o.cal));
+    out!("{}", intrinsics_table(cal));
     for (a, b, r) in o.high {
         outln!("correlation {a}/{b} = {r:.3} (above 0.9)");
     }
     outln!(
         "projection uncertainty of a ray: worst {:.4} px, RMS {:.4} px over the frame",
-        o.uncertainty.max,
-        o.uncertainty.rms
+        o.device.projection_uncertainty.max,
+        o.device.projection_uncertainty.rms
     );
-    if let Some(cv) = o.cross {
+    if let Some(cv) = &o.device.cross_validation {
         outln!(
             "cross-validation ({} / {} frames): the halves' projections differ by {:.4} px at most, {:.4} px RMS; after the rotation between them ({:.4}°) {:.4} px at most, {:.4} px RMS, {:.2} × the {:.4} px their σ predict",
             cv.frames[0],
@@ -429,7 +367,7 @@ fn print_outcome(o: &Outcome<'_>) -> Result<()> {
             cv.predicted_rms_px
         );
     }
-    for w in o.warnings {
+    for w in &o.device.warnings {
         outln!("WARNING: {w}");
     }
     if let Some(c) = o.check_report {
@@ -506,8 +444,8 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         None => args,
     };
     let model = sfm_model(args, globals.quiet)?;
-    let names = check_frames(&model, args.frames())?;
-    let size = image_size(&model)?;
+    let names = model_frames(&model, args.frames())?;
+    let size = frame_size(&model)?;
     let detections = detect_named_frames(
         args.frames(),
         &names,
@@ -537,20 +475,14 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         },
         &log,
     )?;
-    let DeviceCalibration {
-        calibration: cal,
-        distortion_check: check,
-        projection_uncertainty: uncertainty,
-        cross_validation: cross,
-        warnings,
-    } = device;
+    let cal = &device.calibration;
     let model_name = args.sfm.as_ref().map_or_else(
         || "colmap (run by pipemeasure)".to_string(),
         |p| p.display().to_string(),
     );
     let profile = Profile::from_calibration(
         &args.device,
-        &cal,
+        cal,
         size,
         &CalibrationSource {
             command: std::env::args().collect::<Vec<_>>().join(" "),
@@ -560,11 +492,11 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         },
     );
     let high = profile.high_correlations();
-    let network = pipemeasure::calibrate::network::network(&cal);
-    let check_report = check_point_report(args, check_list.as_deref(), &cal)?;
+    let network = pipemeasure::calibrate::network::network(cal);
+    let check_report = check_point_report(args, check_list.as_deref(), cal)?;
     let colmap = match &args.network {
         Some(_) => Some(
-            colmap_network(&cal, &profile.camera())
+            colmap_network(cal, &profile.camera())
                 .context("exporting the adjusted network as a COLMAP model")?,
         ),
         None => None,
@@ -573,35 +505,14 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     // they moved into place, the profile last (a failure before leaves nothing new behind).
     let report_dir = args.report.as_deref().map(StagedDir::new).transpose()?;
     if let (Some(staged), Some(dir)) = (&report_dir, &args.report) {
-        let stop_reason = cal.stop_reason();
-        let report = CalibrationReport {
-            schema: CALIBRATION_REPORT_SCHEMA,
-            device: &args.device,
-            profile: &profile,
-            selection: &cal.selection,
-            iterations: &cal.iterations,
-            converged: cal.converged(),
-            stop_reason: &stop_reason,
-            term_alternation: cal.term_alternation.as_ref(),
-            adjusted_frames: cal
-                .adjusted_frames
-                .iter()
-                .map(|&k| cal.frame_names[k].as_str())
-                .collect(),
-            redundancy: cal.redundancy,
-            feature_adjustment: cal.feature_adjustment,
-            adjustment: cal.summary,
-            distortion_check: &check,
-            projection_uncertainty: &uncertainty,
-            cross_validation: cross.as_ref(),
-            high_correlations: high.clone(),
-            warnings: &warnings,
-            observations: &cal.observations,
-            network: &network,
-            check_points: check_report.as_ref(),
-            frame_jackknife: cal.frame_jackknife.as_ref(),
-        };
-        write_calibration_report(staged.path(), &cal, size, &report)
+        let report = CalibrationReport::new(
+            &args.device,
+            &profile,
+            &device,
+            &network,
+            check_report.as_ref(),
+        );
+        write_calibration_report(staged.path(), cal, size, &report)
             .with_context(|| format!("writing the report {}", dir.display()))?;
     }
     let network_dir = match (&args.network, &colmap) {
@@ -625,11 +536,8 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         .with_context(|| format!("writing the profile {}", out.display()))?;
     print_outcome(&Outcome {
         args,
-        cal: &cal,
+        device: &device,
         high: &high,
-        uncertainty: &uncertainty,
-        cross: cross.as_ref(),
-        warnings: &warnings,
         check_report: check_report.as_ref(),
         colmap: colmap.as_ref(),
         out: &out,

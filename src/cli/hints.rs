@@ -3,6 +3,7 @@
 //! library's messages name only what the input is, so that other front ends can say it their
 //! way.
 
+use pipemeasure::calibrate::input::InputError;
 use pipemeasure::measure::scale::ScaleError;
 use pipemeasure::measure::site::{SiteError, SiteInput};
 use pipemeasure::profile::{ProfileError, backup_path};
@@ -31,6 +32,19 @@ pub fn on_the_command_line(err: &(dyn std::error::Error + 'static)) -> Option<St
     }
     if let Some(e) = err.downcast_ref::<ScaleError>() {
         return scale(e);
+    }
+    if let Some(InputError::MissingFrames {
+        missing,
+        images,
+        frames,
+        first,
+    }) = err.downcast_ref::<InputError>()
+    {
+        return Some(format!(
+            "{missing} of the model's {images} images are not in {} (first: {}): is --frames the folder the model was built from?",
+            frames.display(),
+            first.join(", ")
+        ));
     }
     if let Some(VideoError::NotInstalled(program)) = err.downcast_ref::<VideoError>() {
         return Some(format!(

@@ -11,7 +11,7 @@ use super::ReportError;
 use super::plots;
 use crate::calibrate::check_points::CheckPointReport;
 use crate::calibrate::checks::{DistortionCheck, ImageMap};
-use crate::calibrate::{Calibration, CrossValidation};
+use crate::calibrate::{Calibration, CrossValidation, DeviceCalibration};
 use crate::camera::Term;
 use crate::geometry::pose::camera_centre;
 use crate::io::atomic::write_bytes_atomic;
@@ -36,7 +36,7 @@ pub struct CalibrationReport<'a> {
     /// Whether the loop converged.
     pub converged: bool,
     /// Why the loop stopped.
-    pub stop_reason: &'a str,
+    pub stop_reason: String,
     /// The selection's alternation between two term sets and how the loop settled it.
     pub term_alternation: Option<&'a crate::calibrate::pipeline::TermAlternation>,
     /// Frames (by name) in the final adjustment; the others saw too few targets.
@@ -65,6 +65,48 @@ pub struct CalibrationReport<'a> {
     pub check_points: Option<&'a CheckPointReport>,
     /// The jackknife over the frames that checked (and widened) the covariance, when it ran.
     pub frame_jackknife: Option<&'a crate::calibrate::pipeline::JackknifeCheck>,
+}
+
+impl<'a> CalibrationReport<'a> {
+    /// The report of the device `device`'s calibration `dc`, written as `profile`, with its
+    /// adjusted `network` and the comparison against check points when there was one.
+    #[must_use]
+    pub fn new(
+        device: &'a str,
+        profile: &'a Profile,
+        dc: &'a DeviceCalibration,
+        network: &'a crate::calibrate::network::Network,
+        check_points: Option<&'a CheckPointReport>,
+    ) -> Self {
+        let cal = &dc.calibration;
+        CalibrationReport {
+            schema: CALIBRATION_REPORT_SCHEMA,
+            device,
+            profile,
+            selection: &cal.selection,
+            iterations: &cal.iterations,
+            converged: cal.converged(),
+            stop_reason: cal.stop_reason(),
+            term_alternation: cal.term_alternation.as_ref(),
+            adjusted_frames: cal
+                .adjusted_frames
+                .iter()
+                .map(|&k| cal.frame_names[k].as_str())
+                .collect(),
+            redundancy: cal.redundancy,
+            feature_adjustment: cal.feature_adjustment,
+            adjustment: cal.summary,
+            distortion_check: &dc.distortion_check,
+            projection_uncertainty: &dc.projection_uncertainty,
+            cross_validation: dc.cross_validation.as_ref(),
+            high_correlations: profile.high_correlations(),
+            warnings: &dc.warnings,
+            observations: &cal.observations,
+            network,
+            check_points,
+            frame_jackknife: cal.frame_jackknife.as_ref(),
+        }
+    }
 }
 
 /// The intrinsics as a Markdown table: each term's value and σ, or `fixed`.
