@@ -8,11 +8,14 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use pipemeasure::io::atomic::StagedFile;
-use pipemeasure::io::ply::{PointCloud, stage_binary};
+use pipemeasure::io::ply::stage_binary;
 use pipemeasure::measure::network::{Clearance, Network, clearances};
 use pipemeasure::measure::scan::{Pass, ScanConfig, extract_network_from};
 use pipemeasure::measure::site::{CloudSource, SiteRequest, site_network};
 use pipemeasure::measure::{CylinderConfig, NetworkConfig, PipeMaterial};
+use pipemeasure::report::network::{
+    coloured_by_segment, refusals_text, segments_csv, segments_table,
+};
 use serde::Serialize;
 
 use super::fit_cylinder::{checked, read_points};
@@ -143,124 +146,6 @@ fn config(args: &Args) -> Result<ScanConfig> {
         search_points: args.search_points,
         ..ScanConfig::default()
     })
-}
-
-fn table(network: &Network) -> String {
-    let mut s = format!(
-        "{:>3}  {:>7}  {:>5}  {:>17}  {:>8}  {:>7}  {:>28}  {:>28}  {:>7}  {:>5}  {:>5}\n",
-        "id",
-        "NPS",
-        "DN",
-        "radius mm",
-        "ΔOD mm",
-        "len m",
-        "start",
-        "end",
-        "inliers",
-        "arc°",
-        "RMSE"
-    );
-    let xyz = |p: &[f64; 3]| format!("({:.3}, {:.3}, {:.3})", p[0], p[1], p[2]);
-    for g in &network.segments {
-        s.push_str(&format!(
-            "{:>3}  {:>7}  {:>5}  {:>8.2} ± {:<6.2}  {:>+8.2}  {:>7.3}  {:>28}  {:>28}  {:>7}  {:>5.0}  {:>5.2}\n",
-            g.id,
-            g.nominal.nps.unwrap_or("-"),
-            g.nominal.dn,
-            g.radius_m * 1e3,
-            g.radius_std_m * 1e3,
-            g.nominal.difference_mm,
-            g.length_m,
-            xyz(&g.start),
-            xyz(&g.end),
-            g.inliers,
-            g.coverage_deg,
-            g.rmse_m * 1e3
-        ));
-    }
-    s
-}
-
-fn refusals(network: &Network) -> String {
-    let mut s = String::new();
-    for r in &network.refused {
-        s.push_str(&format!(
-            "refused: r {:.1} mm, {} points, ({:.3}, {:.3}, {:.3}) to ({:.3}, {:.3}, {:.3}): {}\n",
-            r.radius_m * 1e3,
-            r.inliers,
-            r.start[0],
-            r.start[1],
-            r.start[2],
-            r.end[0],
-            r.end[1],
-            r.end[2],
-            r.refusal
-        ));
-    }
-    for p in &network.planes {
-        s.push_str(&format!(
-            "removed plane: {} points, normal ({:.3}, {:.3}, {:.3}) through ({:.3}, {:.3}, {:.3})\n",
-            p.points, p.normal[0], p.normal[1], p.normal[2], p.point[0], p.point[1], p.point[2]
-        ));
-    }
-    s
-}
-
-fn csv(network: &Network) -> String {
-    let mut s = String::from(
-        "id,x0,y0,z0,x1,y1,z1,length_m,radius_m,radius_std_m,rmse_m,inliers,coverage_deg,standard,nps,dn,od_mm,od_difference_mm\n",
-    );
-    for g in &network.segments {
-        s.push_str(&format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-            g.id,
-            g.start[0],
-            g.start[1],
-            g.start[2],
-            g.end[0],
-            g.end[1],
-            g.end[2],
-            g.length_m,
-            g.radius_m,
-            g.radius_std_m,
-            g.rmse_m,
-            g.inliers,
-            g.coverage_deg,
-            g.nominal.standard,
-            g.nominal.nps.unwrap_or(""),
-            g.nominal.dn,
-            g.nominal.outside_diameter_mm,
-            g.nominal.difference_mm
-        ));
-    }
-    s
-}
-
-/// A distinct colour per segment (golden-angle hues), grey for the rest.
-fn coloured(points: &[nalgebra::Vector3<f64>], network: &Network) -> PointCloud {
-    let mut colors = vec![[128u8, 128, 128]; points.len()];
-    for g in &network.segments {
-        let h = (g.id as f64 * 137.508).rem_euclid(360.0) / 60.0;
-        let x = (1.0 - (h % 2.0 - 1.0).abs()) * 255.0;
-        let c = match h as u32 {
-            0 => [255.0, x, 0.0],
-            1 => [x, 255.0, 0.0],
-            2 => [0.0, 255.0, x],
-            3 => [0.0, x, 255.0],
-            4 => [x, 0.0, 255.0],
-            _ => [255.0, 0.0, x],
-        };
-        for &k in &g.inlier_indices {
-            if let Some(slot) = colors.get_mut(k) {
-                *slot = c.map(|v| v as u8);
-            }
-        }
-    }
-    PointCloud {
-        points: points.iter().map(|p| (*p).into()).collect(),
-        colors: Some(colors),
-        ..Default::default()
-    }
 }
 
 /// The network of the cloud, the points searched, the points in the file and the stride: from
@@ -410,9 +295,9 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
             network.components
         );
         if !network.segments.is_empty() {
-            outln!("{}", table(network));
+            outln!("{}", segments_table(network));
         }
-        outln!("{}", refusals(network));
+        outln!("{}", refusals_text(network));
         if let Some(pairs) = &pairs {
             for c in pairs {
                 outln!("clearance {} – {}: {:.1} mm", c.a, c.b, c.distance_m * 1e3);
@@ -432,13 +317,16 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
     // Files staged first and moved into place together: nothing half-written.
     let mut staged: Vec<StagedFile> = Vec::new();
     if let Some(path) = &args.csv {
-        let text = csv(network);
+        let text = segments_csv(network);
         staged.push(StagedFile::write(path, |w| w.write_all(text.as_bytes()))?);
     }
     if let Some(path) = &args.ply {
         // The points searched (all finite points, or every stride-th), the segments' indices
         // into them.
-        staged.push(stage_binary(path, &coloured(&found.points, network))?);
+        staged.push(stage_binary(
+            path,
+            &coloured_by_segment(&found.points, network),
+        )?);
     }
     for file in staged {
         file.commit()?;

@@ -1,7 +1,8 @@
 //! Reports for people (layer 6): the calibration report (`report.md`, `report.json`), its plots
-//! (SVG, plotters) and tables.
+//! (SVG, plotters) and tables; the pipe network as tables, CSV and a coloured cloud.
 
 pub mod calibration;
+pub mod network;
 pub mod plots;
 
 /// A plot that could not be drawn or written.

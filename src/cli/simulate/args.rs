@@ -1,23 +1,15 @@
-//! `pipemeasure simulate lab|site --like DEVICE --out DIR`.
+//! The options of `pipemeasure simulate` and the simulator's settings they make.
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
-use pipemeasure::sim::dense::NoiseDirection;
+use anyhow::Result;
 use pipemeasure::sim::devices::preset;
-use pipemeasure::sim::lab::{LabConfig, WallTexture};
-use pipemeasure::sim::plant::{PlantLayout, PlantScanConfig, simulate_plant};
 use pipemeasure::sim::render::RenderConfig;
-use pipemeasure::sim::simulate::{
-    SfmSource, SimulateOptions, SiteOptions, frames_to_render, simulate_lab, simulate_site,
-};
-use pipemeasure::sim::site::SiteConfig;
+use pipemeasure::sim::simulate::{SfmSource, SimulateOptions};
 use pipemeasure::sim::trajectory::MotionConfig;
-use pipemeasure::sim::truth::Truth;
-use pipemeasure::sim::video::{VideoConfig, speeds};
+use pipemeasure::sim::video::VideoConfig;
 
-use super::progress::bar;
-use super::{Globals, usage, values};
+use super::super::{usage, values};
 
 /// `simulate` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -38,37 +30,37 @@ pub enum Command {
 pub struct PlantArgs {
     /// Output folder (tls_scan.ply, truth.json; tls_scan.e57 with --e57).
     #[arg(long)]
-    out: PathBuf,
+    pub(super) out: PathBuf,
     /// Seed of the room and of the scan's noise.
     #[arg(long, default_value_t = 1)]
-    seed: u64,
+    pub(super) seed: u64,
     /// The room: `riser-header` (a riser and header, a valved header with a tee down to a
     /// pump, a small-bore line) or `process` (a tank with a flanged nozzle and a line welded
     /// into its shell, a reducer, a flange pair, a horizontal tee, a short spool between
     /// elbows, a run resting on a beam).
     #[arg(long, value_enum, default_value_t = PlantLayoutArg::RiserHeader)]
-    layout: PlantLayoutArg,
+    pub(super) layout: PlantLayoutArg,
     /// Scanner stations, 1–4.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u8).range(1..=4))]
-    stations: u8,
+    pub(super) stations: u8,
     /// Angular step of the scan (mrad), 0.5–20.
     #[arg(long, default_value_t = 3.0, value_parser = values::step_mrad)]
-    step_mrad: f64,
+    pub(super) step_mrad: f64,
     /// Range noise σ (mm).
     #[arg(long, default_value_t = 1.5, value_parser = values::non_negative)]
-    range_noise_mm: f64,
+    pub(super) range_noise_mm: f64,
     /// Also write the scan as E57 (`tls_scan.e57`), one scan per station in the station's own
     /// frame with its pose, as a scanner's software exports it.
     #[arg(long)]
-    e57: bool,
+    pub(super) e57: bool,
     /// Replace an existing simulation in --out.
     #[arg(long)]
-    force: bool,
+    pub(super) force: bool,
 }
 
 /// `simulate plant --layout`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-enum PlantLayoutArg {
+pub(super) enum PlantLayoutArg {
     RiserHeader,
     Process,
 }
@@ -78,49 +70,49 @@ enum PlantLayoutArg {
 pub struct Common {
     /// Device preset to imitate: p30, iphone11 or s10.
     #[arg(long, default_value = "p30")]
-    like: String,
+    pub(super) like: String,
     /// Output folder (frames/, truth.json, sparse/).
     #[arg(long)]
-    out: PathBuf,
+    pub(super) out: PathBuf,
     /// Frame width in pixels, 64–8192 (intrinsics scale with it; the height follows the 16:9
     /// aspect).
     #[arg(long, default_value_t = 3840, value_parser = clap::value_parser!(u32).range(64..=8192))]
-    width: u32,
+    pub(super) width: u32,
     /// Frame height in pixels (default: from the width).
     #[arg(long)]
-    height: Option<u32>,
+    pub(super) height: Option<u32>,
     /// Seed of every random choice.
     #[arg(long, default_value_t = 1)]
-    seed: u64,
+    pub(super) seed: u64,
     /// Stratified samples per axis at edges (N×N), 1–16.
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=16))]
-    samples: u32,
+    pub(super) samples: u32,
     /// Supersample every pixel instead of only those with an edge.
     #[arg(long)]
-    no_adaptive: bool,
+    pub(super) no_adaptive: bool,
     /// σ of the Gaussian optical blur (px, 0 or more).
     #[arg(long, default_value_t = 0.7, value_parser = values::non_negative)]
-    blur: f64,
+    pub(super) blur: f64,
     /// Read noise σ (8-bit levels, 0 or more).
     #[arg(long, default_value_t = 1.0, value_parser = values::non_negative)]
-    read_noise: f64,
+    pub(super) read_noise: f64,
     /// Shot noise: variance per grey level of signal (0 or more).
     #[arg(long, default_value_t = 0.02, value_parser = values::non_negative)]
-    shot_noise: f64,
+    pub(super) shot_noise: f64,
     /// Brightness loss at the image corners (0 to below 1).
     #[arg(long, default_value_t = 0.25, value_parser = values::below_one)]
-    vignetting: f64,
+    pub(super) vignetting: f64,
     /// Write JPEG frames with this quality (1–100) instead of PNG.
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..=100))]
-    jpeg_quality: Option<u8>,
+    pub(super) jpeg_quality: Option<u8>,
     /// Sparse model: the simulated stand-in, or the real COLMAP run on the frames.
     #[arg(long, value_enum, default_value = "stand-in")]
-    sfm: SfmArg,
+    pub(super) sfm: SfmArg,
     /// Replace an existing simulation in the output folder.
     #[arg(long)]
-    force: bool,
+    pub(super) force: bool,
     #[command(flatten)]
-    video: VideoArgs,
+    pub(super) video: VideoArgs,
 }
 
 /// Video options (`--video` and the options that need it).
@@ -129,44 +121,44 @@ pub struct VideoArgs {
     /// Film a hand-held phone video instead of still frames: a continuous trajectory through
     /// the stations, rolling shutter, motion blur; the frames are its 1 fps extraction.
     #[arg(long)]
-    video: bool,
+    pub(super) video: bool,
     /// Rolling-shutter readout time in ms (default: the preset's, 20/25/30 ms; 0 = global
     /// shutter).
     #[arg(long, value_name = "MS", requires = "video", value_parser = parse_ms)]
-    readout: Option<f64>,
+    pub(super) readout: Option<f64>,
     /// Exposure time in ms (0 = no motion blur).
     #[arg(long, value_name = "MS", requires = "video", default_value = "8", value_parser = parse_ms)]
-    exposure: f64,
+    pub(super) exposure: f64,
     /// Range of the angular speed at the extracted frames, °/s.
     #[arg(long, value_name = "MIN,MAX", requires = "video", default_value = "3,9", value_parser = parse_range)]
-    angular_speed: [f64; 2],
+    pub(super) angular_speed: [f64; 2],
     /// Range of the camera's speed at the extracted frames, m/s.
     #[arg(long, value_name = "MIN,MAX", requires = "video", default_value = "0.05,0.15", value_parser = parse_range)]
-    linear_speed: [f64; 2],
+    pub(super) linear_speed: [f64; 2],
     /// RMS angular rate of the hand tremor, °/s (0 = none).
     #[arg(long, value_name = "DEG_S", requires = "video", default_value_t = 0.5, value_parser = values::non_negative)]
-    tremor: f64,
+    pub(super) tremor: f64,
     /// Length of the pause between two extracted frames, s (0 = none).
     #[arg(long, value_name = "S", requires = "video", default_value_t = 0.2, value_parser = values::non_negative)]
-    pause: f64,
+    pub(super) pause: f64,
     /// Autofocus on: the principal distance follows the focus distance (the preset's lens).
     #[arg(long, requires = "video")]
-    focus_breathing: bool,
+    pub(super) focus_breathing: bool,
     /// Also render each extracted frame's two neighbours in the video (t ± 1/fps) into
     /// frames/neighbours/, listed in frames/frames.json.
     #[arg(long, requires = "video")]
-    neighbours: bool,
+    pub(super) neighbours: bool,
     /// Video frame rate; given, also renders the full-rate video at --video-width into
     /// video/frame_%05d.png with video/motion.json (and video.mp4 when ffmpeg is installed).
     #[arg(long, value_name = "N", requires = "video", value_parser = parse_fps)]
-    fps: Option<f64>,
+    pub(super) fps: Option<f64>,
     /// Width of the full-rate video (px).
     #[arg(long, value_name = "W", requires = "fps", default_value_t = 320)]
-    video_width: u32,
+    pub(super) video_width: u32,
     /// Pipe the full-rate frames straight into video.mp4 with ffmpeg (required) instead of
     /// writing them as PNG: a 90 s 4K30 video is some 50 GB of PNG.
     #[arg(long, requires = "fps")]
-    video_stream: bool,
+    pub(super) video_stream: bool,
 }
 
 /// Parses a duration in milliseconds into seconds.
@@ -200,7 +192,7 @@ fn parse_range(s: &str) -> Result<[f64; 2], String> {
     }
 }
 
-fn video_config(v: &VideoArgs) -> Option<VideoConfig> {
+pub(super) fn video_config(v: &VideoArgs) -> Option<VideoConfig> {
     v.video.then(|| VideoConfig {
         motion: MotionConfig {
             angular_speed_deg_s: v.angular_speed,
@@ -220,7 +212,7 @@ fn video_config(v: &VideoArgs) -> Option<VideoConfig> {
 }
 
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
-enum SfmArg {
+pub(super) enum SfmArg {
     StandIn,
     Colmap,
 }
@@ -229,26 +221,26 @@ enum SfmArg {
 #[derive(Debug, clap::Args)]
 pub struct LabArgs {
     #[command(flatten)]
-    common: Common,
+    pub(super) common: Common,
     /// Number of frames (half portrait going up, half landscape coming down).
     #[arg(long, default_value_t = 90)]
-    frames: usize,
+    pub(super) frames: usize,
     /// Approximate number of targets on the two walls.
     #[arg(long, default_value_t = 200)]
-    targets: usize,
+    pub(super) targets: usize,
     /// Leave out the floor.
     #[arg(long)]
-    no_floor: bool,
+    pub(super) no_floor: bool,
     /// The walls between the targets: `plaster` (stains and speckle at every scale) or
     /// `speckled` (blobs of the targets' sizes sprayed over it, dark and light, some nearly
     /// round: a test of what the detector takes for a target).
     #[arg(long, value_enum, default_value_t = WallTextureArg::Plaster)]
-    wall_texture: WallTextureArg,
+    pub(super) wall_texture: WallTextureArg,
 }
 
 /// `--wall-texture`.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum WallTextureArg {
+pub(super) enum WallTextureArg {
     Plaster,
     Speckled,
 }
@@ -257,14 +249,14 @@ enum WallTextureArg {
 #[derive(Debug, clap::Args)]
 pub struct SiteArgs {
     #[command(flatten)]
-    common: Common,
+    pub(super) common: Common,
     /// Number of frames (half portrait, half landscape; default 60, 20 for `--layout
     /// two-pipes`).
     #[arg(long)]
-    frames: Option<usize>,
+    pub(super) frames: Option<usize>,
     /// Number of targets on the wall (default 8, 10 for `--layout two-pipes`).
     #[arg(long)]
-    targets: Option<usize>,
+    pub(super) targets: Option<usize>,
     /// The mock pipes: `three-pipes` (6", 4" and 2" pipes across the wall, the 4" of interest)
     /// or `two-pipes` (a capped 2" pipe 1.16 m long in front of a capped 6" one, 0.14 m further
     /// back; 20 frames on an arc around the 2" at 1.35–1.9 m).
@@ -274,50 +266,50 @@ pub struct SiteArgs {
         default_value = "three-pipes",
         conflicts_with = "plant"
     )]
-    layout: Layout,
+    pub(super) layout: Layout,
     /// σ of the dense observations (px, 0 or more).
     #[arg(long, default_value_t = 0.3, value_parser = values::non_negative)]
-    dense_noise: f64,
+    pub(super) dense_noise: f64,
     /// σ of a 3D error of every dense point (mm, 0 or more), as a multi-view stereo depth map
     /// has it, beside the pixel noise.
     #[arg(long, value_name = "MM", default_value_t = 0.0, value_parser = values::non_negative)]
-    dense_point_noise: f64,
+    pub(super) dense_point_noise: f64,
     /// Direction of that error: the surface normal or the viewing ray of the point's reference
     /// view.
     #[arg(long, value_enum, default_value = "normal")]
-    dense_noise_along: NoiseAlong,
+    pub(super) dense_noise_along: NoiseAlong,
     /// Fraction of dense points that are outliers (0–0.5): a depth off by up to ±10 % along
     /// their reference view's ray.
     #[arg(long, value_name = "FRACTION", default_value_t = 0.0, value_parser = values::outlier_fraction)]
-    dense_outliers: f64,
+    pub(super) dense_outliers: f64,
     /// Spacing of the dense points on the pipes (mm; default 2.5 mm scaled by 3840 / width).
     #[arg(long, value_name = "MM", value_parser = values::positive)]
-    dense_spacing: Option<f64>,
+    pub(super) dense_spacing: Option<f64>,
     /// Offset added to the TLS coordinates, e.g. 500000,5600000,0 (site coordinates).
     #[arg(long, value_parser = values::point)]
-    tls_offset: Option<nalgebra::Vector3<f64>>,
+    pub(super) tls_offset: Option<nalgebra::Vector3<f64>>,
     /// A plant room (the room `simulate plant --seed` draws) instead of the mock pipes: target
     /// boards on its walls, a walk around it looking in, its TLS scan from the room's stations,
     /// and plant.json (every pipe segment and object) beside truth.json.
     #[arg(long)]
-    plant: bool,
+    pub(super) plant: bool,
 }
 
 /// `--layout`.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum Layout {
+pub(super) enum Layout {
     ThreePipes,
     TwoPipes,
 }
 
 /// `--dense-noise-along`.
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum NoiseAlong {
+pub(super) enum NoiseAlong {
     Normal,
     Ray,
 }
 
-fn options(c: &Common) -> Result<SimulateOptions> {
+pub(super) fn options(c: &Common) -> Result<SimulateOptions> {
     let Some(p) = preset(&c.like) else {
         return Err(usage(format!(
             "--like {}: unknown device preset; presets: p30, iphone11, s10",
@@ -350,217 +342,4 @@ fn options(c: &Common) -> Result<SimulateOptions> {
         video: video_config(&c.video),
         ..SimulateOptions::default()
     })
-}
-
-/// What the video added, for the summary line.
-fn video_summary(truth: &Truth) -> String {
-    let Some(v) = &truth.video else {
-        return String::new();
-    };
-    let speeds: Vec<(f64, f64)> = truth
-        .frames
-        .iter()
-        .filter_map(|f| f.motion.as_ref().map(speeds))
-        .collect();
-    let n = speeds.len().max(1) as f64;
-    let mut text = format!(
-        "\nvideo: readout {:.1} ms, exposure {:.1} ms, at the frames {:.1} °/s and {:.3} m/s on average{}{}",
-        v.readout_s * 1e3,
-        v.exposure_s * 1e3,
-        speeds.iter().map(|s| s.0).sum::<f64>() / n,
-        speeds.iter().map(|s| s.1).sum::<f64>() / n,
-        if v.focus_breathing_m > 0.0 {
-            ", focus breathing"
-        } else {
-            ""
-        },
-        if truth.frames.iter().any(|f| !f.neighbours.is_empty()) {
-            ", neighbours in frames/neighbours"
-        } else {
-            ""
-        },
-    );
-    if let Some(full) = &v.full_rate {
-        let place = match (full.streamed, full.mp4.as_deref()) {
-            (true, Some(m)) => format!("streamed into {m} (no PNG)"),
-            (_, Some(m)) => format!("in video/, {m}"),
-            (_, None) => "in video/".to_string(),
-        };
-        text += &format!(
-            "\nfull-rate video: {} frames {}x{} at {} fps {place}",
-            full.frames, full.width, full.height, v.frame_rate,
-        );
-    }
-    text
-}
-
-/// Warns on stderr when the full-rate video could not be encoded.
-fn warn_encoding(truth: &Truth) {
-    if let Some(note) = truth
-        .video
-        .as_ref()
-        .and_then(|v| v.full_rate.as_ref())
-        .and_then(|f| f.note.as_ref())
-    {
-        eprintln!("warning: no video.mp4: {note}");
-    }
-}
-
-fn check_out(c: &Common) -> Result<()> {
-    if c.out.join("truth.json").exists() && !c.force {
-        bail!(
-            "{} already holds a simulation; pass --force to replace it",
-            c.out.display()
-        );
-    }
-    Ok(())
-}
-
-pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
-    match cmd {
-        Command::Plant(args) => {
-            if args.out.join("truth.json").exists() && !args.force {
-                bail!(
-                    "{} already holds a simulation; pass --force to replace it",
-                    args.out.display()
-                );
-            }
-            let config = PlantScanConfig {
-                step_rad: args.step_mrad * 1e-3,
-                range_noise_m: args.range_noise_mm * 1e-3,
-                stations: usize::from(args.stations),
-                ..PlantScanConfig::default()
-            };
-            if !globals.quiet {
-                eprintln!("scanning the plant room from {} stations", args.stations);
-            }
-            let truth = simulate_plant(
-                match args.layout {
-                    PlantLayoutArg::RiserHeader => PlantLayout::RiserHeader,
-                    PlantLayoutArg::Process => PlantLayout::Process,
-                },
-                args.seed,
-                &config,
-                args.e57,
-                &args.out,
-            )
-            .with_context(|| format!("simulating a plant room into {}", args.out.display()))?;
-            let [l, w, h] = truth.room;
-            outln!(
-                "simulated plant room {l:.2} x {w:.2} x {h:.2} m (seed {}): {} pipe segments, {} other objects; TLS scan {} points ({} mixed pixels)\nwritten to {}",
-                args.seed,
-                truth.segments.len(),
-                truth.objects.len(),
-                truth.scan.as_ref().map_or(0, |s| s.points),
-                truth.scan.as_ref().map_or(0, |s| s.mixed_pixels),
-                args.out.display()
-            );
-        }
-        Command::Lab(args) => {
-            check_out(&args.common)?;
-            let opts = options(&args.common)?;
-            let lab = LabConfig {
-                frames: args.frames,
-                targets: args.targets,
-                floor: !args.no_floor,
-                wall_texture: match args.wall_texture {
-                    WallTextureArg::Plaster => WallTexture::Plaster,
-                    WallTextureArg::Speckled => WallTexture::Speckled,
-                },
-                ..LabConfig::default()
-            };
-            // Every value comes from an option: what the simulator refuses (the video's options
-            // included) is a usage error.
-            opts.validate().map_err(|e| usage(e.to_string()))?;
-            lab.validate().map_err(|e| usage(e.to_string()))?;
-            let total = frames_to_render(&opts, args.frames).unwrap_or(args.frames);
-            let progress = bar(total as u64, "rendering", globals.quiet);
-            let truth = simulate_lab(&opts, &lab, &args.common.out, &|done| {
-                progress.set_position(done as u64)
-            })
-            .with_context(|| format!("simulating a lab into {}", args.common.out.display()))?;
-            progress.finish_and_clear();
-            warn_encoding(&truth);
-            let visible: usize = truth.frames.iter().map(|f| f.targets.len()).sum();
-            outln!(
-                "simulated lab: {} frames {}x{} ({}), {} targets, {:.1} visible per frame, sparse model: {} ({} points){}\nwritten to {}",
-                truth.frames.len(),
-                truth.camera.width,
-                truth.camera.height,
-                truth.camera.device,
-                truth.targets.len(),
-                visible as f64 / truth.frames.len() as f64,
-                truth.sfm.as_ref().map_or("none", |s| s.source.as_str()),
-                truth.sfm.as_ref().map_or(0, |s| s.points),
-                video_summary(&truth),
-                args.common.out.display()
-            );
-        }
-        Command::Site(args) => {
-            check_out(&args.common)?;
-            let opts = options(&args.common)?;
-            let mut site = SiteOptions::default();
-            if matches!(args.layout, Layout::TwoPipes) {
-                site.site = SiteConfig::two_pipes();
-            }
-            site.site.frames = args.frames.unwrap_or(site.site.frames);
-            site.site.targets = args.targets.unwrap_or(site.site.targets);
-            site.dense.noise_px = args.dense_noise;
-            site.dense.point_noise_m = args.dense_point_noise * 1e-3;
-            site.dense.point_noise_along = match args.dense_noise_along {
-                NoiseAlong::Normal => NoiseDirection::Normal,
-                NoiseAlong::Ray => NoiseDirection::Ray,
-            };
-            site.dense.outlier_fraction = args.dense_outliers;
-            site.dense.pipe_spacing_at_width_m = args.dense_spacing.map(|mm| mm * 1e-3);
-            site.plant = args.plant;
-            if let Some(o) = args.tls_offset {
-                site.tls.offset = o.into();
-            }
-            opts.validate().map_err(|e| usage(e.to_string()))?;
-            site.site.validate().map_err(|e| usage(e.to_string()))?;
-            let total = frames_to_render(&opts, site.site.frames).unwrap_or(site.site.frames);
-            let progress = bar(total as u64, "rendering", globals.quiet);
-            let truth = simulate_site(&opts, &site, &args.common.out, &|done| {
-                progress.set_position(done as u64)
-            })
-            .with_context(|| format!("simulating a site into {}", args.common.out.display()))?;
-            progress.finish_and_clear();
-            warn_encoding(&truth);
-            let pipe = truth.pipes.iter().find(|p| p.of_interest);
-            let dense = truth.dense.as_ref();
-            let (what, content, room) = if args.plant {
-                (
-                    "plant-room site",
-                    " on boards".to_string(),
-                    " (plant.json: the room's pipe segments)",
-                )
-            } else {
-                (
-                    "site",
-                    format!(
-                        ", pipe of interest {} (r = {:.2} mm)",
-                        pipe.map_or("?", |p| p.name.as_str()),
-                        pipe.map_or(0.0, |p| p.radius * 1000.0)
-                    ),
-                    "",
-                )
-            };
-            outln!(
-                "simulated {what}: {} frames {}x{} ({}), {} targets{content}\ndense: {} points, {} observations, fused cloud {} points; TLS scan {} points{}\nwritten to {}{room}",
-                truth.frames.len(),
-                truth.camera.width,
-                truth.camera.height,
-                truth.camera.device,
-                truth.targets.len(),
-                dense.map_or(0, |d| d.points),
-                dense.map_or(0, |d| d.observations),
-                dense.map_or(0, |d| d.fused_points),
-                truth.tls.as_ref().map_or(0, |t| t.points),
-                video_summary(&truth),
-                args.common.out.display()
-            );
-        }
-    }
-    Ok(())
 }
