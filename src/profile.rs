@@ -900,9 +900,9 @@ mod tests {
         assert_eq!(Profile::read(&backup).unwrap().intrinsics.c, 3000.0);
     }
 
-    /// Issue 21: a second `--force` overwrote `.bak`, so the original profile was lost.
+    /// A second `--force` overwrote `.bak`, so the original profile was lost.
     #[test]
-    fn issue_21_backups_are_numbered_and_never_overwritten() {
+    fn backups_are_numbered_and_never_overwritten() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("dev.json");
         let mut p = sample();
@@ -918,9 +918,9 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 4);
     }
 
-    /// Issue 21: a profile followed by a second object was accepted.
+    /// A profile followed by a second object was accepted.
     #[test]
-    fn issue_21_a_second_json_object_is_an_error() {
+    fn a_second_json_object_is_an_error() {
         let text = sample().to_json();
         let e = Profile::from_json(&format!("{text}\n{text}\n"), Path::new("p.json"))
             .unwrap_err()
@@ -933,10 +933,10 @@ mod tests {
         Profile::from_json(&format!("{text}\n \n"), Path::new("p.json")).unwrap();
     }
 
-    /// Issue 21: `profile show` accepted fx = 0 (`b1 = −c`) when c + b1 came out a rounding
+    /// `profile show` accepted fx = 0 (`b1 = −c`) when c + b1 came out a rounding
     /// error above zero.
     #[test]
-    fn issue_21_a_pixel_aspect_far_from_one_is_refused() {
+    fn a_pixel_aspect_far_from_one_is_refused() {
         for b1 in [-3000.0, -3000.0 + 1e-9, -1600.0, 3100.0] {
             let e = error_for(|v| v["intrinsics"]["b1"] = b1.into());
             assert!(
@@ -949,9 +949,9 @@ mod tests {
         Profile::from_json(&v.to_string(), Path::new("p.json")).unwrap();
     }
 
-    /// Issue 21: a profile path that is a directory gave "not found".
+    /// A profile path that is a directory gave "not found".
     #[test]
-    fn issue_21_a_directory_is_not_a_profile() {
+    fn a_directory_is_not_a_profile() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path().join("dir.json");
         std::fs::create_dir(&d).unwrap();
@@ -968,10 +968,10 @@ mod tests {
         }
     }
 
-    /// Issue 21: `calibrate --device ../../escaped` without `--out` wrote outside
+    /// `calibrate --device ../../escaped` without `--out` wrote outside
     /// `calibrations/`.
     #[test]
-    fn issue_21_device_names_are_names_not_paths() {
+    fn device_names_are_names_not_paths() {
         for bad in [
             "../../escaped",
             "a/b",

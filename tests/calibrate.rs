@@ -199,7 +199,7 @@ fn frames_without_targets_are_left_out_of_the_adjustment() {
     }
 }
 
-/// Issue 19: a frame's motion over its neighbours goes to the fourth order only where the path
+/// A frame's motion over its neighbours goes to the fourth order only where the path
 /// needs it. The p30 lab (1920×1080, 40 frames) under a 20 ms readout, each frame moving with a
 /// hand-held motion to third order (6 °/s, 0.1 m/s, 30 °/s², 0.5 m/s², 600 °/s³, 10 m/s³ about
 /// seeded axes, as in `benches/adjust.rs`) and, the second time, with a snap as large as the

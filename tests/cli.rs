@@ -277,15 +277,13 @@ fn usage_errors_exit_with_2() {
 #[test]
 fn match_command_tracks_hold_one_target_each() {
     let dir = tempfile::tempdir().unwrap();
-    let (code, _, stderr) = pipemeasure(
+    common::simulate(
         dir.path(),
+        "lab",
         &[
-            "simulate", "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames",
-            "10", "--out", "lab", "--quiet",
+            "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames", "10",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{stderr}");
     let (code, stdout, stderr) = pipemeasure(
         dir.path(),
         &[
@@ -302,9 +300,7 @@ fn match_command_tracks_hold_one_target_each() {
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("matched"), "{stdout}");
     let truth = pipemeasure::sim::truth::Truth::read(&dir.path().join("lab/truth.json")).unwrap();
-    let out: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("tracks.json")).unwrap())
-            .unwrap();
+    let out: serde_json::Value = common::read_json(&dir.path().join("tracks.json"));
     let targets = out["targets"].as_array().unwrap();
     assert!(targets.len() >= 20, "{} targets", targets.len());
     for t in targets {
@@ -403,15 +399,13 @@ fn match_command_tracks_hold_one_target_each() {
 #[test]
 fn calibrate_command_writes_a_profile_and_a_report() {
     let dir = tempfile::tempdir().unwrap();
-    let (code, _, stderr) = pipemeasure(
+    common::simulate(
         dir.path(),
+        "lab",
         &[
-            "simulate", "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames",
-            "16", "--out", "lab", "--quiet",
+            "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames", "16",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{stderr}");
     let args = [
         "calibrate",
         "--device",
@@ -470,15 +464,13 @@ fn calibrate_command_writes_a_profile_and_a_report() {
 #[test]
 fn calibrate_refuses_a_model_whose_frames_are_missing() {
     let dir = tempfile::tempdir().unwrap();
-    let (code, _, stderr) = pipemeasure(
+    common::simulate(
         dir.path(),
+        "lab",
         &[
-            "simulate", "lab", "--like", "p30", "--width", "640", "--height", "360", "--frames",
-            "9", "--out", "lab", "--quiet",
+            "lab", "--like", "p30", "--width", "640", "--height", "360", "--frames", "9",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{stderr}");
     std::fs::create_dir(dir.path().join("other")).unwrap();
     let (code, _, stderr) = pipemeasure(
         dir.path(),
@@ -582,15 +574,13 @@ fn fit_cylinder_command_reports_json_and_exit_3_when_nothing_is_found() {
 fn calibrate_reports_the_network_and_check_points() {
     use rand::{Rng, SeedableRng};
     let dir = tempfile::tempdir().unwrap();
-    let (code, _, stderr) = pipemeasure(
+    common::simulate(
         dir.path(),
+        "lab",
         &[
-            "simulate", "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames",
-            "20", "--out", "lab", "--quiet",
+            "lab", "--like", "p30", "--width", "1280", "--height", "720", "--frames", "20",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{stderr}");
     let truth = pipemeasure::sim::truth::Truth::read(&dir.path().join("lab/truth.json")).unwrap();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let rotation = nalgebra::UnitQuaternion::from_euler_angles(0.3, -0.2, 2.1);

@@ -31,9 +31,7 @@ fn the_demo_calibrates_and_measures_the_pipe_within_a_tenth_of_a_millimetre() {
         "{stdout}"
     );
     let dir = tmp.path().join("demo");
-    let read = |name: &str| -> serde_json::Value {
-        serde_json::from_str(&std::fs::read_to_string(dir.join(name)).unwrap()).unwrap()
-    };
+    let read = |name: &str| -> serde_json::Value { common::read_json(&dir.join(name)) };
     let truth = read("site/truth.json");
     let radius = truth["pipes"]
         .as_array()

@@ -618,14 +618,14 @@ fn coded_target(
     }
 }
 
-/// Issue 18: discs of semi-minor axis 2–3 px (camera blur σ 0.7 px, noise σ 2 grey levels on a
+/// Discs of semi-minor axis 2–3 px (camera blur σ 0.7 px, noise σ 2 grey levels on a
 /// contrast of 150) are all found at 200 random sub-pixel centres each, and their reported
 /// centre σ is honest against the exact centre: the RMS of the per-axis errors over σ lies
 /// within [0.75, 1.33] (the sampling error of that RMS over 400 values is 3.5 %, the scatter of
 /// each σ̂ from 12–20 effective edge points about 15 %: a σ right to a third). And it says they
 /// are weak: at least 1.5 times the σ of a 10 px disc.
 #[test]
-fn issue_18_small_discs_down_to_2_px_are_found_with_an_honest_centre_sigma() {
+fn small_discs_down_to_2_px_are_found_with_an_honest_centre_sigma() {
     use synthetic::Blur;
     let config = DetectConfig {
         min_semi_minor_px: 1.5,
@@ -658,12 +658,12 @@ fn issue_18_small_discs_down_to_2_px_are_found_with_an_honest_centre_sigma() {
     }
 }
 
-/// Issue 18: defocused discs (radius 12 px; Gaussian blur σ 1.5–3 px, pillbox defocus of
+/// Defocused discs (radius 12 px; Gaussian blur σ 1.5–3 px, pillbox defocus of
 /// radius 3 and 6 px; noise σ 2 grey levels) are all found at 200 random sub-pixel centres each,
 /// with an honest centre σ (normalised error RMS within [0.75, 1.33], as above) that grows with
 /// the blur, and the fitted edge width of a Gaussian blur within 10 % of its σ.
 #[test]
-fn issue_18_defocused_discs_are_found_with_an_honestly_larger_centre_sigma() {
+fn defocused_discs_are_found_with_an_honestly_larger_centre_sigma() {
     use synthetic::Blur;
     let config = DetectConfig::default();
     let sharp = disc_trials(12.0, Blur::Gaussian(0.7), 2.0, 200, 19, &config);
@@ -712,13 +712,13 @@ fn issue_18_defocused_discs_are_found_with_an_honestly_larger_centre_sigma() {
     }
 }
 
-/// Issue 18: a ring-coded target gives its central dot and nothing else: neither the arcs of
+/// A ring-coded target gives its central dot and nothing else: neither the arcs of
 /// its ring (the ellipse through an arc of 11 of 12 sectors is closed to 92 % but holds the
 /// central dot: not a uniform interior) nor the sectors (curved boxes with corners). Dot radius
 /// 6, 8 and 12 px (sectors 6–12 px wide), dark on light and light on dark, blur σ 0.7 px,
 /// exact geometry: the central dot's centre within 0.05 px.
 #[test]
-fn issue_18_coded_target_rings_give_only_the_central_dot() {
+fn coded_target_rings_give_only_the_central_dot() {
     let config = DetectConfig {
         min_semi_minor_px: 2.0,
         ..DetectConfig::default()
@@ -786,11 +786,11 @@ fn dome(size: usize, cx: f64, cy: f64, r: f64, light: [f64; 3]) -> GrayImage {
     })
 }
 
-/// Issue 18: shaded domes — a screw head, a rivet: no flat interior, a highlight — are not
+/// Shaded domes — a screw head, a rivet: no flat interior, a highlight — are not
 /// discs (their profile across the edge is no step between two flat levels), lit from above or
 /// from a side, 6–16 px in radius; a flat disc of the same size and edge is (the control).
 #[test]
-fn issue_18_shaded_domes_are_not_discs() {
+fn shaded_domes_are_not_discs() {
     let config = DetectConfig::default();
     for r in [6.0, 10.0, 16.0] {
         // (The frame at least four radii wide: a target may span a quarter of it.)

@@ -1,4 +1,4 @@
-//! Issue 20: the e57 crate's real test files (`../shared/data/e57_testdata`): the same bunny
+//! The e57 crate's real test files (`../shared/data/e57_testdata`): the same bunny
 //! in every encoding reads to the same points, in one piece or streamed in chunks, and the
 //! corrupt files are clear errors naming the file, never a panic.
 #![allow(clippy::unwrap_used)]

@@ -24,7 +24,7 @@ fn quick_experiments(extra: &[&str]) -> (tempfile::TempDir, i32, String, String)
 
 /// The JSON file `name` of an experiments folder.
 fn read_json(dir: &std::path::Path, name: &str) -> Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join(name)).unwrap()).unwrap()
+    common::read_json(&dir.join(name))
 }
 
 #[test]
@@ -112,7 +112,7 @@ fn an_unknown_experiment_is_a_usage_error_naming_it() {
     assert!(!tmp.path().join("ex").exists());
 }
 
-/// `experiments --quick --only video-sites` (issue 19): the three presets' sites filmed as hand-held
+/// `experiments --quick --only video-sites`: the three presets' sites filmed as hand-held
 /// video; Table III's acceptance for video: every pre-calibration row (with and without the
 /// rows' poses) within 0.2 mm of the simulator's radius. The default run leaves it out.
 #[test]

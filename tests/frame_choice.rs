@@ -1,4 +1,4 @@
-//! Issue 19, Deliver 3: frame choice from video. A simulated hand-held lab video at 25 fps
+//! Frame choice from video. A simulated hand-held lab video at 25 fps
 //! whose motion varies over time (3–9 °/s at the stations, a pause at each viewpoint), encoded
 //! by ffmpeg; the frames chosen per second by their measured apparent motion and sharpness are
 //! judged by the simulator's truth (each video frame's angular speed in `video/motion.json`)
@@ -21,10 +21,10 @@ fn the_chosen_frames_move_at_most_half_as_fast_as_plain_extraction() {
     }
     let dir = tempfile::tempdir().unwrap();
     let lab = dir.path().join("lab");
-    let (code, _, err) = pipemeasure(
+    common::simulate(
         dir.path(),
+        lab.to_str().unwrap(),
         &[
-            "simulate",
             "lab",
             "--like",
             "p30",
@@ -37,13 +37,8 @@ fn the_chosen_frames_move_at_most_half_as_fast_as_plain_extraction() {
             "25",
             "--video-width",
             "480",
-            "--out",
-            lab.to_str().unwrap(),
-            "--quiet",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{err}");
     let motion: VideoMotion =
         serde_json::from_str(&std::fs::read_to_string(lab.join("video/motion.json")).unwrap())
             .unwrap();

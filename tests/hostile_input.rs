@@ -37,15 +37,11 @@ fn ply(points: &[[f32; 3]]) -> Vec<u8> {
 
 /// A 4-frame 480×270 p30 lab in `dir/lab` (frames, truth, stand-in model).
 fn lab(dir: &Path) {
-    let (code, _, stderr) = pipemeasure(
+    common::simulate(
         dir,
-        &[
-            "simulate", "lab", "--like", "p30", "--width", "480", "--frames", "4", "--out", "lab",
-            "--quiet",
-        ],
-        &[],
+        "lab",
+        &["lab", "--like", "p30", "--width", "480", "--frames", "4"],
     );
-    assert_eq!(code, 0, "{stderr}");
 }
 
 /// Every file and folder under `dir`, relative, sorted (hidden temporaries included).
@@ -67,7 +63,7 @@ fn tree(dir: &Path) -> Vec<String> {
 
 /// A PLY header integer beyond u64 panicked inside ply-rs (exit 101).
 #[test]
-fn issue_21_ply_header_integer_beyond_u64_exits_1() {
+fn ply_header_integer_beyond_u64_exits_1() {
     let dir = tempfile::tempdir().unwrap();
     write(
         dir.path(),
@@ -94,7 +90,7 @@ fn issue_21_ply_header_integer_beyond_u64_exits_1() {
 
 /// A 263-byte binary PLY with `element junk 1000000000000` and no property spun for hours.
 #[test]
-fn issue_21_ply_element_without_property_exits_at_once() {
+fn ply_element_without_property_exits_at_once() {
     let dir = tempfile::tempdir().unwrap();
     let mut b = b"ply\nformat binary_little_endian 1.0\nelement junk 1000000000000\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n".to_vec();
     b.extend([0u8; 12]);
@@ -111,7 +107,7 @@ fn issue_21_ply_element_without_property_exits_at_once() {
 
 /// A duplicated property (`x y z x`) was read as a plausible wrong cloud, exit 0.
 #[test]
-fn issue_21_ply_duplicated_property_exits_1() {
+fn ply_duplicated_property_exits_1() {
     let dir = tempfile::tempdir().unwrap();
     write(
         dir.path(),
@@ -128,7 +124,7 @@ fn issue_21_ply_duplicated_property_exits_1() {
 
 /// 100 finite points near 1e308 made the cylinder fit panic ("cannot sample empty range").
 #[test]
-fn issue_21_fit_cylinder_on_coordinates_near_1e308_exits_1() {
+fn fit_cylinder_on_coordinates_near_1e308_exits_1() {
     let dir = tempfile::tempdir().unwrap();
     let points: Vec<[f32; 3]> = (0..100)
         .map(|k| {
@@ -148,7 +144,7 @@ fn issue_21_fit_cylinder_on_coordinates_near_1e308_exits_1() {
 
 /// Option values clap did not check exited 1 (and blamed the wrong option or the file).
 #[test]
-fn issue_21_invalid_option_values_exit_2() {
+fn invalid_option_values_exit_2() {
     let dir = tempfile::tempdir().unwrap();
     write(dir.path(), "c.ply", &ply(&[[0.0, 0.0, 0.0]; 20]));
     let cases: [(&[&str], &str); 16] = [
@@ -239,7 +235,7 @@ fn issue_21_invalid_option_values_exit_2() {
 
 /// `calibrate --device ../../escaped` without `--out` wrote outside `calibrations/`.
 #[test]
-fn issue_21_calibrate_device_must_be_a_name() {
+fn calibrate_device_must_be_a_name() {
     let dir = tempfile::tempdir().unwrap();
     let work = dir.path().join("a/b");
     std::fs::create_dir_all(work.join("frames")).unwrap();
@@ -267,7 +263,7 @@ fn issue_21_calibrate_device_must_be_a_name() {
 /// The profile was written before its report: a failing report left a profile behind. Every
 /// destination is now checked before the work, and the outputs are moved into place together.
 #[test]
-fn issue_21_calibrate_with_an_unwritable_report_writes_nothing() {
+fn calibrate_with_an_unwritable_report_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     lab(dir.path());
     write(
@@ -311,7 +307,7 @@ fn issue_21_calibrate_with_an_unwritable_report_writes_nothing() {
 /// `profile list` stopped at a folder named `dir.json` with a self-contradicting message; a
 /// profile path that is a folder said "not found".
 #[test]
-fn issue_21_profile_list_and_show_with_a_folder_named_json() {
+fn profile_list_and_show_with_a_folder_named_json() {
     let dir = tempfile::tempdir().unwrap();
     let cal = dir.path().join("cal");
     std::fs::create_dir_all(cal.join("dir.json")).unwrap();
@@ -336,7 +332,7 @@ fn issue_21_profile_list_and_show_with_a_folder_named_json() {
 
 /// `profile show` accepted fx = 0 (`b1 = −c`); a second object after the profile was ignored.
 #[test]
-fn issue_21_profile_show_refuses_fx_zero_and_a_second_object() {
+fn profile_show_refuses_fx_zero_and_a_second_object() {
     let dir = tempfile::tempdir().unwrap();
     let cam = preset_camera(&P30, 320, 180);
     let mut p = Profile::uncalibrated("small", &cam, BTreeMap::new());
@@ -378,7 +374,7 @@ fn grey(w: u32, h: u32) -> DynamicImage {
 /// A failed `undistort` left a partly filled output folder; a distortion that cannot be
 /// inverted wrote black frames and exited 0.
 #[test]
-fn issue_21_undistort_is_all_or_nothing_and_refuses_a_folding_distortion() {
+fn undistort_is_all_or_nothing_and_refuses_a_folding_distortion() {
     let dir = tempfile::tempdir().unwrap();
     let good = profile_with(dir.path(), "good.json", |_| {});
     let input = dir.path().join("frames");
@@ -455,7 +451,7 @@ fn issue_21_undistort_is_all_or_nothing_and_refuses_a_folding_distortion() {
 /// `match` used frames of another size than the model's camera (and decoded a 16000×16000
 /// PNG in full); it exited 1 rather than 3 when nothing matched.
 #[test]
-fn issue_21_match_checks_frame_sizes_and_exits_3_when_nothing_matches() {
+fn match_checks_frame_sizes_and_exits_3_when_nothing_matches() {
     let dir = tempfile::tempdir().unwrap();
     lab(dir.path());
     let frames = dir.path().join("lab/frames");
@@ -506,7 +502,7 @@ fn issue_21_match_checks_frame_sizes_and_exits_3_when_nothing_matches() {
 
 /// A truncated JPEG (the first third of a frame) was accepted, its missing part grey.
 #[test]
-fn issue_21_truncated_jpeg_frame_exits_1() {
+fn truncated_jpeg_frame_exits_1() {
     let dir = tempfile::tempdir().unwrap();
     let mut bytes = std::io::Cursor::new(Vec::new());
     grey(320, 180)
@@ -527,7 +523,7 @@ fn issue_21_truncated_jpeg_frame_exits_1() {
 /// The main command checked its `--json` destination only after the whole measurement; write
 /// errors printed the OS error twice.
 #[test]
-fn issue_21_destinations_are_checked_first_and_the_os_error_printed_once() {
+fn destinations_are_checked_first_and_the_os_error_printed_once() {
     let dir = tempfile::tempdir().unwrap();
     let (code, _, stderr) = pipemeasure(
         dir.path(),

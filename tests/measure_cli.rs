@@ -8,7 +8,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use common::{pipemeasure, pipemeasure_with_profiles as run};
+use common::pipemeasure_with_profiles as run;
 use pipemeasure::profile::Profile;
 use pipemeasure::sim::devices::{P30, preset_camera};
 
@@ -19,29 +19,22 @@ const OFFSET: [f64; 3] = [500_000.0, 5_600_000.0, 100.0];
 /// axis point in TLS coordinates).
 fn simulate_site(dir: &Path) -> (f64, [f64; 3]) {
     let offset = format!("{},{},{}", OFFSET[0], OFFSET[1], OFFSET[2]);
-    let (code, _, stderr) = pipemeasure(
+    common::simulate(
         dir,
+        "site",
         &[
-            "simulate",
             "site",
             "--like",
             "p30",
-            "--out",
-            "site",
             "--width",
             "960",
             "--frames",
             "20",
             "--tls-offset",
             &offset,
-            "--quiet",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{stderr}");
-    let truth: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("site/truth.json")).unwrap())
-            .unwrap();
+    let truth: serde_json::Value = common::read_json(&dir.join("site/truth.json"));
     let pipe = truth["pipes"]
         .as_array()
         .unwrap()
@@ -85,8 +78,7 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         stdout.contains("pipe radius") && stdout.contains("TLS reference"),
         "{stdout}"
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = common::read_json(&dir.join("report.json"));
     let r = report["radius_m"].as_f64().unwrap();
     let reference = report["reference_radius_m"].as_f64().unwrap();
     eprintln!(
@@ -146,8 +138,7 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         stdout.contains("two targets") && stdout.contains("assumed"),
         "{stdout}"
     );
-    let two: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("two.json")).unwrap()).unwrap();
+    let two: serde_json::Value = common::read_json(&dir.join("two.json"));
     assert_eq!(two["frame"], "scaled");
     let r2 = two["radius_m"].as_f64().unwrap();
     assert!(
@@ -225,7 +216,7 @@ fn the_main_command_measures_the_pipe_of_interest_and_handles_bad_input() {
         .collect();
     write("plane.ply", &format!("{}{plane}", header(2500)));
     expect_error(&["--scale", "1", "plane.ply"], 3, "no pipe found");
-    // An option value out of range is a usage error naming the option (issue 21: it was 1).
+    // An option value out of range is a usage error naming the option.
     expect_error(
         &["--scale=-2", "plane.ply"],
         2,

@@ -1,4 +1,4 @@
-//! Seeded mutation test of every reader of user input (issue 21): valid and hostile files of
+//! Seeded mutation test of every reader of user input: valid and hostile files of
 //! every format — the fuzz corpus (`fuzz/corpus/`, built by `fuzz/make_corpus.py`) and the real
 //! files of `../shared/data` — are truncated, have bytes flipped, inserted and repeated, counts
 //! replaced by lies and numbers by hostile ones, thousands of cases in all. No reader may panic,

@@ -40,7 +40,7 @@ fn simulate(dir: &Path, seed: &str, dense: &[&str]) -> Value {
     args.extend_from_slice(dense);
     let (code, _, stderr) = pipemeasure(dir, &args, &[]);
     assert_eq!(code, 0, "{stderr}");
-    serde_json::from_str(&std::fs::read_to_string(dir.join("site/truth.json")).unwrap()).unwrap()
+    common::read_json(&dir.join("site/truth.json"))
 }
 
 /// A truth pipe: (radius, axis point in TLS coordinates).
@@ -83,8 +83,7 @@ fn check(dir: &Path, truth: &Value) {
     );
     assert_eq!(code, 0, "{stderr}");
     assert!(stdout.contains("pipe of interest *"), "{stdout}");
-    let m: Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("m.json")).unwrap()).unwrap();
+    let m: Value = common::read_json(&dir.join("m.json"));
     let (r, sigma) = (
         m["radius_m"].as_f64().unwrap(),
         m["radius_std_m"].as_f64().unwrap(),

@@ -1,4 +1,4 @@
-//! Issue 20: `pipemeasure simulate plant` and `pipemeasure pipes` on simulated plant rooms
+//! `pipemeasure simulate plant` and `pipemeasure pipes` on simulated plant rooms
 //! (TLS from two stations, σ 1.5 mm, shadows, mixed pixels), checked against the simulator's
 //! truth: every straight pipe segment longer than 0.5 m found exactly once, its radius within
 //! 0.5 mm, its axis endpoints within 2 cm, its nominal size right, and nothing reported that
@@ -47,15 +47,10 @@ fn endpoint_error(s: &Value, g: &Value) -> f64 {
 fn check_room(seed: u64, sim: &[&str]) -> Value {
     let tmp = tempfile::tempdir().unwrap();
     let seed_arg = seed.to_string();
-    let mut args = vec![
-        "simulate", "plant", "--out", "room", "--seed", &seed_arg, "--quiet",
-    ];
-    args.extend_from_slice(sim);
-    let (code, _, stderr) = pipemeasure(tmp.path(), &args, &[]);
-    assert_eq!(code, 0, "{stderr}");
-    let truth: Value =
-        serde_json::from_str(&std::fs::read_to_string(tmp.path().join("room/truth.json")).unwrap())
-            .unwrap();
+    let mut scene = vec!["plant", "--seed", &seed_arg];
+    scene.extend_from_slice(sim);
+    common::simulate(tmp.path(), "room", &scene);
+    let truth: Value = common::read_json(&tmp.path().join("room/truth.json"));
     let scanned = truth["scan"]["points"].as_u64().unwrap() as usize;
     check_network(
         tmp.path(),
@@ -167,18 +162,14 @@ fn plant_room_seed_3() {
 #[test]
 fn plant_site_photogrammetric_cloud_scaled_from_its_targets() {
     let tmp = tempfile::tempdir().unwrap();
-    let (code, _, stderr) = pipemeasure(
+    common::simulate(
         tmp.path(),
+        "site",
         &[
-            "simulate", "site", "--plant", "--like", "p30", "--width", "1280", "--frames", "60",
-            "--seed", "2", "--out", "site", "--quiet",
+            "site", "--plant", "--like", "p30", "--width", "1280", "--frames", "60", "--seed", "2",
         ],
-        &[],
     );
-    assert_eq!(code, 0, "{stderr}");
-    let read = |f: &str| -> Value {
-        serde_json::from_str(&std::fs::read_to_string(tmp.path().join(f)).unwrap()).unwrap()
-    };
+    let read = |f: &str| -> Value { common::read_json(&tmp.path().join(f)) };
     let (truth, site) = (read("site/plant.json"), read("site/truth.json"));
     let fused = site["dense"]["fused_points"].as_u64().unwrap() as usize;
     let network = check_network(
@@ -253,8 +244,7 @@ fn main_command_measures_the_pipe_of_interest(dir: &std::path::Path, truth: &Val
         );
         assert_eq!(code, 0, "{extra:?}: {stderr}");
         eprintln!("{extra:?}: {stdout}");
-        let m: Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("m.json")).unwrap()).unwrap();
+        let m: Value = common::read_json(&dir.join("m.json"));
         serde_json::json!({
             "start": m["segment_start"], "end": m["segment_end"], "radius": m["radius_m"],
             "nps": m["nominal"]["nps"], "found": m["segments_found"],
@@ -387,14 +377,7 @@ fn a_lying_vertex_count_is_a_clear_error() {
 #[test]
 fn an_e57_with_a_scan_per_station_and_their_poses_gives_the_same_network() {
     let tmp = tempfile::tempdir().unwrap();
-    let (code, _, stderr) = pipemeasure(
-        tmp.path(),
-        &[
-            "simulate", "plant", "--out", "room", "--seed", "2", "--e57", "--quiet",
-        ],
-        &[],
-    );
-    assert_eq!(code, 0, "{stderr}");
+    common::simulate(tmp.path(), "room", &["plant", "--seed", "2", "--e57"]);
     let ply = pipemeasure::io::ply::read_points(&tmp.path().join("room/tls_scan.ply")).unwrap();
     let e57 = pipemeasure::io::e57::read(&tmp.path().join("room/tls_scan.e57")).unwrap();
     assert_eq!(e57.cloud.len(), ply.cloud.len());
@@ -468,15 +451,12 @@ fn process_rooms_find_every_scanned_pipe_once_with_its_ends_at_the_fittings() {
     let mut in_scope = 0;
     for seed in ["1", "2", "3"] {
         let out = format!("room{seed}");
-        let args = [
-            "simulate", "plant", "--layout", "process", "--out", &out, "--seed", seed, "--quiet",
-        ];
-        let (code, _, stderr) = pipemeasure(tmp.path(), &args, &[]);
-        assert_eq!(code, 0, "{stderr}");
-        let dir = tmp.path().join(&out);
-        let truth: Value =
-            serde_json::from_str(&std::fs::read_to_string(dir.join("truth.json")).unwrap())
-                .unwrap();
+        let dir = common::simulate(
+            tmp.path(),
+            &out,
+            &["plant", "--layout", "process", "--seed", seed],
+        );
+        let truth: Value = common::read_json(&dir.join("truth.json"));
         let scan = format!("{out}/tls_scan.ply");
         let (code, stdout, stderr) =
             pipemeasure(tmp.path(), &["pipes", &scan, "--json", "--quiet"], &[]);

@@ -180,7 +180,7 @@ fn dot_centres_of_frames(dir: &Path, count: usize) -> Vec<Vec<nalgebra::Vector2<
         .collect()
 }
 
-/// Issue 18 acceptance on BoofCV's hand-held video of its hexagonal grid (every 15th frame: 35
+/// Calibrated on BoofCV's hand-held video of its hexagonal grid (every 15th frame: 35
 /// frames of 640×480 H.264; 336 dots, half of its 24 × 28 in `calibration_target.yaml`, as
 /// alternate rows are offset). Every frame shows the whole grid (checked by eye, and by the
 /// hexagonal lattice `scripts/boofcv_detection_eval.py` grows over the detections: exactly the
@@ -239,7 +239,7 @@ fn boofcv_hexagonal_video_frames_show_all_336_dots() {
     );
 }
 
-/// Issue 18 acceptance on BoofCV's hand-held video of its 8×10 dot grid (every 15th frame: 42
+/// Calibrated on BoofCV's hand-held video of its 8×10 dot grid (every 15th frame: 42
 /// frames of 640×480 H.264 with motion blur; dots down to 2.4 px in semi-minor axis, on wooden
 /// boards and asphalt with pebbles, beside the clipboard's clip). The reference is independent:
 /// OpenCV 4.6's `findCirclesGrid` (its own blob detector, symmetric 8×10 pattern, its
@@ -387,7 +387,7 @@ fn boofcv_hand_held_dot_grid_video_calibrates() {
     calibrates_from_the_video_itself(tmp.path(), &profile);
 }
 
-/// Issue 18 acceptance on BoofCV's hand-held video of its hexagonal grid (every 15th frame: 35
+/// Calibrated on BoofCV's hand-held video of its hexagonal grid (every 15th frame: 35
 /// frames, 336 dots), calibrated as a user would (`calibrate --frames DIR`, COLMAP run by
 /// calibrate).
 ///
@@ -592,7 +592,7 @@ fn boofcv_dot_calibration() -> pipemeasure::camera::Intrinsics {
     }
 }
 
-/// Issue 19, Deliver 3–4 on real video: `calibrate --video movie.mp4 --per-second 2` decodes
+/// On real video: `calibrate --video movie.mp4 --per-second 2` decodes
 /// BoofCV's hand-held dot-grid video, chooses the frames (with their neighbours, so the
 /// rolling shutter's readout time can be estimated), runs COLMAP and calibrates. Compared with
 /// BoofCV's dot calibration of the same video by the projection difference over the frame
@@ -668,7 +668,7 @@ fn calibrates_from_the_video_itself(tmp: &Path, every: &pipemeasure::profile::Pr
         "against BoofCV's dot calibration after the best rotation: every 15th frame {:.2} px max ({:.2} RMS), --video {:.2} px max ({:.2} RMS); readout {:?}",
         d_every.map.max, d_every.map.rms, d_video.map.max, d_video.map.rms, video.rolling_shutter
     );
-    // Issue 19's acceptance: `--video` agrees with BoofCV at least as well as every-15th-frame
+    // `--video` agrees with BoofCV at least as well as every-15th-frame
     // extraction. Measured 2026-12-04: every 15th frame 4.64–4.69 px, --video 3.21 px (the
     // rolling shutter kept, readout 18.8 ± 4.8 ms). Before the neighbours' motions could start
     // from rest (`calibrate::selection::estimate_readout_time`), the selected motions missed

@@ -1,4 +1,4 @@
-//! The site filmed as a hand-held video (issue 19, Deliver 5): the SfM stand-in's features are
+//! The site filmed as a hand-held video: the SfM stand-in's features are
 //! where the moving rolling-shutter camera sees them (so its poses absorb the rolling shutter,
 //! as COLMAP's do), and the main chain, given the device's readout time, adjusts a motion per
 //! frame with the poses and triangulates the targets and the cloud with each row's pose.

@@ -1,4 +1,4 @@
-//! Issue 19: calibrating from a hand-held rolling-shutter video. A simulated p30 lab filmed as
+//! Calibrating from a hand-held rolling-shutter video. A simulated p30 lab filmed as
 //! video (960×540, 40 frames; readout 20 ms, exposure 8 ms, 3–9 °/s and 0.05–0.15 m/s at the
 //! frames, tremor; each frame's neighbours at ±1/fps), calibrated through the CLI with the
 //! rolling-shutter model and through the library (`experiments --only video-labs`) with and
@@ -37,14 +37,9 @@ fn simulate_video_lab(dir: &Path, args: &[&str]) -> (PathBuf, Truth) {
 /// A simulated p30 lab into `dir/lab` (`simulate lab --like p30` and `args`); returns its
 /// folder and truth.
 fn simulate_lab(dir: &Path, args: &[&str]) -> (PathBuf, Truth) {
-    let lab = dir.join("lab");
-    let mut all = vec!["simulate", "lab", "--like", "p30"];
-    all.extend_from_slice(args);
-    all.extend_from_slice(&["--out", lab.to_str().unwrap(), "--quiet"]);
-    let (code, _, err) = pipemeasure(dir, &all, &[]);
-    assert_eq!(code, 0, "{err}");
-    let truth = Truth::read(&lab.join("truth.json")).unwrap();
-    (lab, truth)
+    let mut scene = vec!["lab", "--like", "p30"];
+    scene.extend_from_slice(args);
+    common::simulated(dir, "lab", &scene)
 }
 
 /// `calibrate` on the lab's frames and sparse model into `dir/NAME.json` with `extra`
@@ -82,7 +77,7 @@ fn a_rolling_shutter_video_calibrates_to_the_true_camera_and_readout_time() {
     let (rolling, log) = calibrate("rolling", &[]);
     let (max_px, ratio) = against_truth(&rolling, &truth);
     eprintln!("rolling shutter: camera vs truth {max_px:.4} px max, {ratio:.2} × its σ");
-    // Issue 19's acceptance: within 0.1 px everywhere, and within 3 σ of what it reports.
+    // Within 0.1 px everywhere, and within 3 σ of what it reports.
     assert!(max_px <= 0.1, "camera {max_px} px from the truth\n{log}");
     assert!(ratio <= 3.0, "error {ratio} × the reported σ\n{log}");
     let readout = rolling

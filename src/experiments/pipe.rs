@@ -17,7 +17,7 @@
 //! sparse model, dense observations, TLS scan and target list), read back from its folder as a
 //! user's data would be.
 //!
-//! The video variant (issue 19, `experiments --only video`) films each site as a hand-held
+//! The video variant (`experiments --only video`) films each site as a hand-held
 //! video (rolling shutter at the preset's readout time, motion blur) and adds a third row:
 //! pre-calibration with each row's pose (a motion per frame adjusted with the poses, the
 //! readout time given, the targets and the cloud triangulated at their rows' poses, as the main

@@ -1,4 +1,4 @@
-//! Issue 19's calibration table: the calibration lab of each device preset filmed as a
+//! The video calibration table: the calibration lab of each device preset filmed as a
 //! hand-held video (rolling shutter at the preset's readout time, motion blur, tremor; each
 //! extracted frame's neighbours at ±1/fps), calibrated twice from the same rendered frames and
 //! the same SfM stand-in's model,

@@ -223,9 +223,9 @@ mod tests {
         assert!(matches!(e.kind, ReadErrorKind::Truncated(_)), "{e}");
     }
 
-    /// Issue 21: a 40-byte file declaring 10⁹ observations reserved 512 MB before failing.
+    /// A 40-byte file declaring 10⁹ observations reserved 512 MB before failing.
     #[test]
-    fn issue_21_lying_counts_are_refused_before_allocating() {
+    fn lying_counts_are_refused_before_allocating() {
         let e = parse_bal(
             Path::new("lie.txt"),
             "1000000000 1000000000 1000000000\n0 0 1 1\n",

@@ -368,10 +368,10 @@ mod tests {
         }
     }
 
-    /// Issue 21: a 249 KB PNG that decodes to 16000×16000 cost 2.2 GB per frame; frames of
+    /// A 249 KB PNG that decodes to 16000×16000 cost 2.2 GB per frame; frames of
     /// another size than the model's were used silently.
     #[test]
-    fn issue_21_frame_size_is_checked_before_decoding() {
+    fn frame_size_is_checked_before_decoding() {
         let png = png_claiming(16_000, 16_000);
         let e = decode_frame(Path::new("big.png"), &png, Some((960, 540))).unwrap_err();
         assert_eq!(
@@ -392,10 +392,10 @@ mod tests {
         assert_eq!(e.to_string(), "f.bmp: the frame is 64x48, expected 48x64");
     }
 
-    /// Issue 21: a truncated JPEG (the first third of a frame) was accepted, its missing part
+    /// A truncated JPEG (the first third of a frame) was accepted, its missing part
     /// grey.
     #[test]
-    fn issue_21_truncated_frames_are_errors() {
+    fn truncated_frames_are_errors() {
         use image::ImageFormat::{Bmp, Jpeg, Png, Tiff};
         for format in [Jpeg, Png, Bmp, Tiff] {
             let bytes = encoded(format);

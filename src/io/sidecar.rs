@@ -1,7 +1,7 @@
 //! The frames sidecar `frames/frames.json` (schema [`FRAMES_SCHEMA`]): for each frame taken
 //! from a video, its time and its neighbours in the video (the frames `±1/fps` away), whose
 //! detections tie the frame's motion to time and so let the calibration estimate the
-//! rolling shutter's readout time (issue 19). Written by `pipemeasure simulate … --video` and
+//! rolling shutter's readout time. Written by `pipemeasure simulate … --video` and
 //! by the frame choice of `calibrate --video`; read by `calibrate`.
 
 use std::path::Path;
@@ -203,7 +203,7 @@ mod tests {
     /// A neighbour listed twice for one frame would be decoded and detected twice (and a
     /// hostile sidecar could list one frame's neighbour millions of times).
     #[test]
-    fn issue_21_a_neighbour_listed_twice_is_refused() {
+    fn a_neighbour_listed_twice_is_refused() {
         let (_d, p) = write(
             r#"{"schema":"pipemeasure.frames/1","frames":[{"name":"a.png","time_s":0,"neighbours":[{"name":"b.png","dt_s":0.04},{"name":"b.png","dt_s":-0.04}]}]}"#,
         );
@@ -218,7 +218,7 @@ mod tests {
 
     /// One object per file, as for profiles: a second one is an error, not ignored.
     #[test]
-    fn issue_21_a_sidecar_followed_by_a_second_object_is_refused() {
+    fn a_sidecar_followed_by_a_second_object_is_refused() {
         let one = r#"{"schema":"pipemeasure.frames/1","frames":[]}"#;
         let (_d, p) = write(one);
         assert!(FramesSidecar::read(&p).is_ok());

@@ -623,10 +623,10 @@ fn local_geometry(nb: &[Vector3<f64>]) -> (Vector3<f64>, f64) {
 mod tests {
     use super::*;
 
-    /// Issue 21: 100 finite points with x in [0, 1e308), y in (−1e308, 0], z = 1e308 made the
+    /// 100 finite points with x in [0, 1e308), y in (−1e308, 0], z = 1e308 made the
     /// cylinder fit panic ("cannot sample empty range"): the local origin overflowed.
     #[test]
-    fn issue_21_coordinates_near_1e308_are_refused() {
+    fn coordinates_near_1e308_are_refused() {
         let points: Vec<Vector3<f64>> = (0..100)
             .map(|k| {
                 let t = f64::from(k) / 100.0;

@@ -175,7 +175,7 @@ mod tests {
         let s = nominal_size(168.3, PipeMaterial::Steel);
         assert_eq!((s.nps, s.dn), (Some("6"), 150));
         assert_eq!(s.difference_mm, 0.0);
-        // The pump-room scan's pipes (issue 20), 88.06 mm and 87.40 mm radius: 6-inch ductile
+        // The pump-room scan's pipes, 88.06 mm and 87.40 mm radius: 6-inch ductile
         // iron (175.26 mm), 7 mm wider than 6-inch steel.
         for r in [88.06, 87.40] {
             let s = nominal_size(2.0 * r, PipeMaterial::DuctileIron);

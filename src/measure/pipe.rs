@@ -1,6 +1,6 @@
 //! Measuring the pipe (paper, "Evaluation of Impact of Calibration on Pipe Reconstruction"): the
 //! dense cloud brought to metres (and into the TLS frame when the targets give a similarity),
-//! the pipe of interest taken from the pipe network found there (issue 20: every pipe once,
+//! the pipe of interest taken from the pipe network found there (every pipe once,
 //! walls and boxes refused), its radius σ combining the fit's and the scale's, and with a TLS
 //! scan the same pipe fitted there as the reference.
 
@@ -351,7 +351,7 @@ mod tests {
         measure_pipe(&room(), &Scaling::Given(1.0), region.as_ref(), &config, &[]).unwrap()
     }
 
-    /// The pipe of interest (issue 20, the main command on the network engine): near a point,
+    /// The pipe of interest (the main command on the network engine): near a point,
     /// the pipe whose axis passes nearest it; along a hint, the pipe along it; with neither,
     /// the best-supported pipe. Each at its radius (0.3 mm) with its axis's ends (1 cm);
     /// neither the floor nor the box is a pipe.

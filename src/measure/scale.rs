@@ -724,11 +724,11 @@ mod tests {
         assert!((two.scale * true_scale - 1.0).abs() < 5e-3);
     }
 
-    /// Issue 21: the association was cubic in the TLS list (2,008 targets took more than a
+    /// The association was cubic in the TLS list (2,008 targets took more than a
     /// minute, hours for the triples alone); it is now quadratic. Eight targets seen, hidden
     /// in a list of 2,008 with 2,000 others spread over a 60 m plant, 1 mm noise.
     #[test]
-    fn issue_21_eight_targets_among_2008_tls_targets_are_associated() {
+    fn eight_targets_among_2008_tls_targets_are_associated() {
         let world = wall_targets();
         let offset = Vector3::new(5.0e5, 4.2e6, 310.0);
         let mut rng = ChaCha8Rng::seed_from_u64(21);

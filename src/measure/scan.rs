@@ -1,4 +1,4 @@
-//! Scans of any size (issue 20): the pipe network of a PLY or E57 file read in chunks, in
+//! Scans of any size: the pipe network of a PLY or E57 file read in chunks, in
 //! memory bounded by a point budget rather than by the scan's size.
 //!
 //! Two passes over the file:

@@ -1,4 +1,4 @@
-//! Plant rooms (issue 20): a room full of pipes, fittings and equipment built from parry3d
+//! Plant rooms: a room full of pipes, fittings and equipment built from parry3d
 //! shapes, and a terrestrial laser scanner that ray-casts it from one or more stations through
 //! parry's bounding-volume hierarchy (shadows and occlusions, range noise, mixed pixels at
 //! depth edges, intensity).

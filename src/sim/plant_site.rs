@@ -1,4 +1,4 @@
-//! A plant room as a photogrammetric site (issue 20): the room of [`super::plant`] seen by the
+//! A plant room as a photogrammetric site: the room of [`super::plant`] seen by the
 //! camera (its parry3d compound rendered, observed and occluding through
 //! [`super::scene::Solids`]), target boards on its four walls (their centres are the
 //! TLS target list), lights under the ceiling, and a walk around the room's free floor looking

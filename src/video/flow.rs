@@ -1,4 +1,4 @@
-//! Apparent motion and sharpness of video frames, for the frame choice (issue 19, Deliver 3):
+//! Apparent motion and sharpness of video frames, for the frame choice:
 //! sparse feature flow (Shi–Tomasi corners, one per grid cell, tracked by pyramidal
 //! Lucas–Kanade with a forward–backward check; Bouguet 2001, "Pyramidal implementation of the
 //! affine Lucas Kanade feature tracker") and the mean squared Laplacian (Pech-Pacheco et al.

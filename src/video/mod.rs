@@ -1,4 +1,4 @@
-//! Frame choice from a phone video (issue 19, Deliver 3): decode with ffmpeg (an external
+//! Frame choice from a phone video: decode with ffmpeg (an external
 //! program, like COLMAP), measure each video frame's apparent motion (sparse feature flow to
 //! its two neighbours, [`flow`]) and sharpness, and pick in each window of `1/N` s the frame
 //! that moves least and is sharpest; write it with its two neighbours in the video and the

@@ -74,3 +74,31 @@ pub fn program_available(program: &str, arg: &str, install: &str) -> bool {
 pub fn colmap_available() -> bool {
     program_available("colmap", "help", "apt-get install -y colmap")
 }
+
+/// Runs `pipemeasure simulate SCENE… --out OUT --quiet` in `dir`, asserts that it succeeded and
+/// returns the scene's folder (`dir/OUT`).
+pub fn simulate(dir: &std::path::Path, out: &str, scene: &[&str]) -> std::path::PathBuf {
+    let mut args = vec!["simulate"];
+    args.extend_from_slice(scene);
+    args.extend_from_slice(&["--out", out, "--quiet"]);
+    let (code, _, stderr) = pipemeasure(dir, &args, &[]);
+    assert_eq!(code, 0, "simulate {scene:?}: {stderr}");
+    dir.join(out)
+}
+
+/// [`simulate`] of a lab or a site, with its truth (`truth.json`).
+pub fn simulated(
+    dir: &std::path::Path,
+    out: &str,
+    scene: &[&str],
+) -> (std::path::PathBuf, pipemeasure::sim::truth::Truth) {
+    let folder = simulate(dir, out, scene);
+    let truth = pipemeasure::sim::truth::Truth::read(&folder.join("truth.json")).unwrap();
+    (folder, truth)
+}
+
+/// The JSON content of `path` (a plant room's truth, a report).
+pub fn read_json(path: &std::path::Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    serde_json::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}

@@ -70,7 +70,7 @@ pub struct CalibrateConfig {
     /// fraction of its worst projection σ (matches that still change by a view or two at the
     /// gate, or a term on the edge of selection, then move nothing that matters), default 0.1.
     pub camera_stable_ratio: f64,
-    /// The rolling-shutter candidate of the term selection (issue 19): `None` leaves it out.
+    /// The rolling-shutter candidate of the term selection: `None` leaves it out.
     /// It is tried when [`CalibrationInput::neighbours`] has the frames' neighbours in the
     /// video, or when [`ReadoutStart::hold`] gives the readout time. The selection tries it
     /// with the readout time held at [`ReadoutStart::readout_s`] (with one frame per instant
@@ -483,7 +483,7 @@ pub fn refresh_pairs(pairs: &mut [PairGeometry], cameras: &[FrameCamera]) {
 
 /// The least and the largest move of the camera between iterations, as a fraction of its
 /// projection σ (`None` before a second adjustment): what a loop that ran out of iterations
-/// still does (issue 18: a loop that does not settle reports how much the intrinsics move).
+/// still does (a loop that does not settle reports how much the intrinsics move).
 fn camera_moves(iterations: &[LoopRecord]) -> Option<(f64, f64)> {
     iterations
         .iter()

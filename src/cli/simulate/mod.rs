@@ -1,10 +1,14 @@
 //! `pipemeasure simulate lab|site --like DEVICE --out DIR`.
 
+use std::path::Path;
+
 use anyhow::{Context, Result, bail};
 use pipemeasure::sim::dense::NoiseDirection;
 use pipemeasure::sim::lab::{LabConfig, WallTexture};
 use pipemeasure::sim::plant::{PlantLayout, PlantScanConfig, simulate_plant};
-use pipemeasure::sim::simulate::{SiteOptions, frames_to_render, simulate_lab, simulate_site};
+use pipemeasure::sim::simulate::{
+    SimError, SimulateOptions, SiteOptions, frames_to_render, simulate_lab, simulate_site,
+};
 use pipemeasure::sim::site::SiteConfig;
 use pipemeasure::sim::truth::Truth;
 use pipemeasure::sim::video::speeds;
@@ -82,6 +86,25 @@ fn check_out(c: &Common) -> Result<()> {
     Ok(())
 }
 
+/// Renders a lab or a site (`what`) of `frames` frames into `out` with a progress bar over
+/// every frame rendered, and warns when its full-rate video could not be encoded.
+fn rendered(
+    opts: &SimulateOptions,
+    frames: usize,
+    what: &str,
+    out: &Path,
+    globals: Globals,
+    simulate: impl FnOnce(&(dyn Fn(usize) + Sync)) -> Result<Truth, SimError>,
+) -> Result<Truth> {
+    let total = frames_to_render(opts, frames).unwrap_or(frames);
+    let progress = bar(total as u64, "rendering", globals.quiet);
+    let truth = simulate(&|done| progress.set_position(done as u64))
+        .with_context(|| format!("simulating a {what} into {}", out.display()))?;
+    progress.finish_and_clear();
+    warn_encoding(&truth);
+    Ok(truth)
+}
+
 pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
     match cmd {
         Command::Plant(args) => {
@@ -139,14 +162,9 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             // included) is a usage error.
             opts.validate().map_err(|e| usage(e.to_string()))?;
             lab.validate().map_err(|e| usage(e.to_string()))?;
-            let total = frames_to_render(&opts, args.frames).unwrap_or(args.frames);
-            let progress = bar(total as u64, "rendering", globals.quiet);
-            let truth = simulate_lab(&opts, &lab, &args.common.out, &|done| {
-                progress.set_position(done as u64)
-            })
-            .with_context(|| format!("simulating a lab into {}", args.common.out.display()))?;
-            progress.finish_and_clear();
-            warn_encoding(&truth);
+            let truth = rendered(&opts, args.frames, "lab", &args.common.out, globals, |p| {
+                simulate_lab(&opts, &lab, &args.common.out, p)
+            })?;
             let visible: usize = truth.frames.iter().map(|f| f.targets.len()).sum();
             outln!(
                 "simulated lab: {} frames {}x{} ({}), {} targets, {:.1} visible per frame, sparse model: {} ({} points){}\nwritten to {}",
@@ -185,14 +203,10 @@ pub fn run(cmd: &Command, globals: Globals) -> Result<()> {
             }
             opts.validate().map_err(|e| usage(e.to_string()))?;
             site.site.validate().map_err(|e| usage(e.to_string()))?;
-            let total = frames_to_render(&opts, site.site.frames).unwrap_or(site.site.frames);
-            let progress = bar(total as u64, "rendering", globals.quiet);
-            let truth = simulate_site(&opts, &site, &args.common.out, &|done| {
-                progress.set_position(done as u64)
-            })
-            .with_context(|| format!("simulating a site into {}", args.common.out.display()))?;
-            progress.finish_and_clear();
-            warn_encoding(&truth);
+            let frames = site.site.frames;
+            let truth = rendered(&opts, frames, "site", &args.common.out, globals, |p| {
+                simulate_site(&opts, &site, &args.common.out, p)
+            })?;
             let pipe = truth.pipes.iter().find(|p| p.of_interest);
             let dense = truth.dense.as_ref();
             let (what, content, room) = if args.plant {

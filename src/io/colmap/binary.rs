@@ -396,10 +396,10 @@ mod tests {
         );
     }
 
-    /// Issue 21 (binary side): a camera 4.8e12 px wide, and a 2D point observing a 3D point
+    /// Binary side: a camera 4.8e12 px wide, and a 2D point observing a 3D point
     /// that does not exist, name the byte and the field.
     #[test]
-    fn issue_21_camera_width_and_missing_point3d_name_the_byte() {
+    fn camera_width_and_missing_point3d_name_the_byte() {
         let dir = tempfile::tempdir().unwrap();
         let mut m = crate::io::colmap::tests::sample();
         m.cameras.get_mut(&CameraId(1)).unwrap().width = 4_800_000_000_000;

@@ -44,7 +44,7 @@ pub enum ColmapRunError {
     Read(#[from] ReadError),
 }
 
-/// COLMAP's options for the frames of a video (issue 19, Deliver 4). The SfM model only
+/// COLMAP's options for the frames of a video. The SfM model only
 /// starts the calibration (Algorithm 1's poses and feature tracks); the targets' own
 /// adjustment gives the camera, so the features need not be extracted at the full 4K size.
 ///

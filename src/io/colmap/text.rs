@@ -492,10 +492,10 @@ mod tests {
         assert!(e.contains("points3D.txt:1") && e.contains("finite"), "{e}");
     }
 
-    /// Issue 21: images.txt naming a POINT3D_ID that points3D.txt does not define was
+    /// `images.txt` naming a POINT3D_ID that points3D.txt does not define was
     /// accepted.
     #[test]
-    fn issue_21_a_point3d_id_that_does_not_exist_is_an_error() {
+    fn a_point3d_id_that_does_not_exist_is_an_error() {
         let e = error_of(&[
             (
                 "images.txt",
@@ -509,10 +509,10 @@ mod tests {
         );
     }
 
-    /// Issue 21: a missing last POINTS2D line showed up later as a confusing points3D.txt
+    /// A missing last POINTS2D line showed up later as a confusing points3D.txt
     /// error.
     #[test]
-    fn issue_21_a_missing_points2d_line_names_the_image() {
+    fn a_missing_points2d_line_names_the_image() {
         for images in ["1 1 0 0 0 0 0 0 1 a.png\n", "1 1 0 0 0 0 0 0 1 a.png"] {
             let e = error_of(&[
                 ("images.txt", images),
@@ -525,10 +525,10 @@ mod tests {
         }
     }
 
-    /// Issue 21: a camera 0 or 4.8e12 px wide was blamed on the focal length, without file,
+    /// A camera 0 or 4.8e12 px wide was blamed on the focal length, without file,
     /// line or field.
     #[test]
-    fn issue_21_camera_size_and_focal_length_name_file_line_and_field() {
+    fn camera_size_and_focal_length_name_file_line_and_field() {
         let cases = [
             (
                 "1 PINHOLE 0 10 5 5 5 5\n",

@@ -172,9 +172,9 @@ fn write_then_read_round_trips_exactly() {
     assert_eq!(bytes.len(), header.len() + 2 * (24 + 12 + 3 + 4));
 }
 
-/// Issue 21: ply-rs panicked (unwrap of a ParseIntError) on header integers beyond u64.
+/// The ply-rs crate panicked (unwrap of a ParseIntError) on header integers beyond u64.
 #[test]
-fn issue_21_ply_header_integer_beyond_u64_is_an_error() {
+fn ply_header_integer_beyond_u64_is_an_error() {
     let e = error_of(b"ply\nformat ascii 1.0\nelement vertex 99999999999999999999999\nproperty float x\nend_header\n");
     assert_eq!(e.location, Some(Location::Line(3)));
     assert!(e.to_string().contains("field element count"), "{e}");
@@ -183,10 +183,10 @@ fn issue_21_ply_header_integer_beyond_u64_is_an_error() {
     assert!(e.to_string().contains("field format version"), "{e}");
 }
 
-/// Issue 21: a binary element with no property and a count of 10¹² spun for hours (a 263-byte
+/// A binary element with no property and a count of 10¹² spun for hours (a 263-byte
 /// file), before or after `vertex`.
 #[test]
-fn issue_21_ply_element_without_properties_is_refused_at_once() {
+fn ply_element_without_properties_is_refused_at_once() {
     for (before, after) in [
         ("element junk 1000000000000\n", ""),
         ("", "element junk 1000000000000\n"),
@@ -213,9 +213,9 @@ fn issue_21_ply_element_without_properties_is_refused_at_once() {
     assert_eq!(parse(Path::new("ok.ply"), &b).unwrap().cloud.len(), 1);
 }
 
-/// Issue 21: counts the file cannot hold are refused before anything is allocated or looped.
+/// Counts the file cannot hold are refused before anything is allocated or looped.
 #[test]
-fn issue_21_ply_lying_counts_are_checked_against_the_file_length() {
+fn ply_lying_counts_are_checked_against_the_file_length() {
     let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty float y\nproperty float z\nelement face 18446744073709551615\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
     b.extend([0u8; 24]);
     let e = error_of(&b);
@@ -227,10 +227,10 @@ fn issue_21_ply_lying_counts_are_checked_against_the_file_length() {
     );
 }
 
-/// Issue 21: a duplicated property (`x y z x`) was misread without error (ascii rotated the
+/// A duplicated property (`x y z x`) was misread without error (ascii rotated the
 /// coordinates, binary used a 12-byte stride for 16-byte records).
 #[test]
-fn issue_21_ply_duplicated_property_is_an_error() {
+fn ply_duplicated_property_is_an_error() {
     for format in ["ascii", "binary_little_endian"] {
         let text = format!(
             "ply\nformat {format} 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nproperty float x\nend_header\n"
@@ -251,9 +251,9 @@ fn issue_21_ply_duplicated_property_is_an_error() {
     }
 }
 
-/// Issue 21: an element declared twice replaced the first.
+/// An element declared twice replaced the first.
 #[test]
-fn issue_21_ply_element_declared_twice_is_an_error() {
+fn ply_element_declared_twice_is_an_error() {
     let e = error_of(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n4 5 6\n7 8 9\n");
     assert_eq!(e.location, Some(Location::Line(7)));
     assert!(
@@ -263,9 +263,9 @@ fn issue_21_ply_element_declared_twice_is_an_error() {
     );
 }
 
-/// Issue 21: extra values on an ascii row were ignored.
+/// Extra values on an ascii row were ignored.
 #[test]
-fn issue_21_ply_extra_values_on_an_ascii_row_are_an_error() {
+fn ply_extra_values_on_an_ascii_row_are_an_error() {
     let e = error_of(b"ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n4 5 6 7\n");
     assert_eq!(e.location, Some(Location::Line(9)));
     assert!(
@@ -275,9 +275,9 @@ fn issue_21_ply_extra_values_on_an_ascii_row_are_an_error() {
     );
 }
 
-/// Issue 21: bytes after the last element were ignored.
+/// Bytes after the last element were ignored.
 #[test]
-fn issue_21_ply_bytes_after_the_last_element_are_an_error() {
+fn ply_bytes_after_the_last_element_are_an_error() {
     let mut b = binary(false, 2, 0);
     let end = b.len() as u64;
     b.extend(b"trailing");
@@ -294,9 +294,9 @@ fn issue_21_ply_bytes_after_the_last_element_are_an_error() {
     parse(Path::new("ok.ply"), b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n\n  \n").unwrap();
 }
 
-/// Issue 21: binary errors gave a fake line number and no byte offset.
+/// Binary errors gave a fake line number and no byte offset.
 #[test]
-fn issue_21_ply_binary_errors_name_the_byte() {
+fn ply_binary_errors_name_the_byte() {
     let mut b = b"ply\nformat binary_little_endian 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\nproperty list char float l\nend_header\n".to_vec();
     let body = b.len() as u64;
     b.extend([0u8; 12]);
@@ -317,9 +317,9 @@ fn issue_21_ply_binary_errors_name_the_byte() {
     assert!(msg.contains("list `l` has length -1"), "{msg}");
 }
 
-/// Issue 21: a non-UTF-8 byte in a header comment gave "not a PLY file".
+/// A non-UTF-8 byte in a header comment gave "not a PLY file".
 #[test]
-fn issue_21_ply_non_utf8_header_comment_is_read() {
+fn ply_non_utf8_header_comment_is_read() {
     let r = parse(Path::new("c.ply"), b"ply\nformat ascii 1.0\ncomment scanned by \xe9quipe \xff\nobj_info \xfe\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\nend_header\n1 2 3\n").unwrap();
     assert_eq!(r.cloud.points, vec![Point3::new(1.0, 2.0, 3.0)]);
 }

@@ -1,4 +1,4 @@
-//! The pipe network of a cluttered cloud (issue 20): every physical pipe once, split into
+//! The pipe network of a cluttered cloud: every physical pipe once, split into
 //! straight segments with their axis endpoints, and what was refused and why.
 //!
 //! 1. **Planes out**: walls, floor and ceiling (and any plane at least
