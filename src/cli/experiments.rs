@@ -4,13 +4,12 @@
 //! self-calibration) — each table written as Markdown and JSON, each figure as SVG, and an
 //! index `README.md` naming the command and seed.
 
-use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use pipemeasure::experiments::PresetRuns;
 use pipemeasure::experiments::eccentricity::{EccentricityResult, EccentricityScenario};
-use pipemeasure::experiments::matching::{Table2, table2, table2_runs};
+use pipemeasure::experiments::matching::{table2, table2_runs};
 use pipemeasure::experiments::pipe::{Table3Options, table3, table3_markdown};
 use pipemeasure::experiments::video_lab::{video_lab_runs, video_labs, video_labs_markdown};
 use pipemeasure::io::atomic::write_bytes_atomic;
@@ -141,14 +140,14 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         );
         let r = pipemeasure::experiments::eccentricity::run(&ecc).map_err(anyhow::Error::msg)?;
         write_eccentricity(out, &r, &command)?;
-        let section = eccentricity_section(&r);
+        let section = r.section_markdown();
         outln!("{section}");
         index.push_str(&section);
     }
     if wanted("table2") {
         log("== Table II: matching with Algorithm 2, robust triangulation and Algorithm 3");
         let t = table2(&t2, &|m| log(&format!("  {m}"))).map_err(anyhow::Error::msg)?;
-        let section = table2_section(&t);
+        let section = t.section_markdown();
         write_table(out, "table2", &section, &command, &t)?;
         outln!("{section}");
         index.push_str(&section);
@@ -270,27 +269,6 @@ fn video_labs_section(
     Ok(section)
 }
 
-fn eccentricity_section(r: &EccentricityResult) -> String {
-    let s = &r.scenario;
-    let mut md = String::new();
-    let _ = write!(
-        md,
-        "\n## Fig. 7 — 3D error of a target centre against the number of views\n\nOne target of {:.0} mm radius, {} convergent {}x{} views of the p30 preset at 1.2–2.5 m, poses off by σ = {}° and {} mm, ellipses with σ = {} px; mean over {} random view combinations per k (seed {}). Paper (28 views, COLMAP poses): 9.46 mm fitted against 0.64 mm adjusted.\n\n{}\n![Fig. 7](fig7.svg)\n\n## Fig. 8 — eccentricity per view\n\nAlgorithm 3 (noisy poses, all views) and Luhmann's closed form (true centre, radius and normal with the noisy poses) against the true eccentricity. Paper (real images, truth marked by hand): mean error 2.41 px for Algorithm 3 against 2.84 px for Luhmann's.\n\n{}\n![Fig. 8](fig8.svg)\n",
-        s.radius_m * 1e3,
-        s.views,
-        s.image_size.0,
-        s.image_size.1,
-        s.rotation_sigma_deg,
-        s.centre_sigma_m * 1e3,
-        s.ellipse_sigma_px,
-        s.combinations,
-        s.seed,
-        r.fig7_markdown(),
-        r.fig8_markdown()
-    );
-    md
-}
-
 fn write_eccentricity(out: &Path, r: &EccentricityResult, command: &str) -> Result<()> {
     let produced = format!("\nProduced by `{command}`.\n");
     write(out, "fig7.md", &(r.fig7_markdown() + &produced))?;
@@ -346,19 +324,4 @@ fn write_eccentricity(out: &Path, r: &EccentricityResult, command: &str) -> Resu
         false,
     )?;
     Ok(())
-}
-
-fn table2_section(t: &Table2) -> String {
-    let o = &t.options;
-    let detections: usize = t.detections.iter().map(|d| d.2).sum();
-    let frames: usize = t.detections.iter().map(|d| d.1).sum();
-    format!(
-        "\n## Table II — matching targets across views\n\nSimulated labs of {} ({} frames of {}x{} each, seed {}; {frames} frames, {detections} detections in all): the SfM stand-in's own bundle adjustment of poses perturbed by 0.1° and 3 mm, features with 0.5 px noise and 3 % gross mismatches, its poses re-adjusted to the true intrinsics; detections are the truth's fitted ellipses with σ = 0.01 px. Counted over pairs of detections in different frames (precision = freedom from mismatches, which the paper calls recall).\n\n{}",
-        o.devices.join(", "),
-        o.frames,
-        o.width,
-        o.width * 9 / 16,
-        o.seed,
-        t.markdown()
-    )
 }
