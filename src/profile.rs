@@ -733,6 +733,17 @@ impl Profile {
             // The σ above are the adjustment's times √variance_inflation (the frames' scatter).
             provenance.insert("frame_jackknife".into(), serde_json::json!(j));
         }
+        if let Some(r) = cal.rolling_shutter.as_ref().filter(|r| r.determined) {
+            // The highest order any frame's motion was adjusted to (fourth over a frame's
+            // video neighbours when the selection kept the snaps, first without neighbours).
+            let order = r
+                .motions
+                .iter()
+                .map(|m| m.order().number())
+                .max()
+                .unwrap_or(1);
+            provenance.insert("motion_order".into(), serde_json::json!(order));
+        }
         if let Some(note) = &source.simulated {
             provenance.insert("simulated".into(), note.clone());
         }
@@ -769,6 +780,38 @@ impl Profile {
                 }),
             provenance,
         }
+    }
+
+    /// The profile of a device's calibration ([`crate::calibrate::calibrate_device`]): as
+    /// [`Profile::from_calibration`], with the cross-validation recorded when it ran.
+    #[must_use]
+    pub fn from_device_calibration(
+        device: &str,
+        dc: &crate::calibrate::DeviceCalibration,
+        size: (u32, u32),
+        source: &CalibrationSource,
+    ) -> Profile {
+        let mut profile = Profile::from_calibration(device, &dc.calibration, size, source);
+        if let Some(cv) = &dc.cross_validation {
+            profile.record_cross_validation(cv);
+        }
+        profile
+    }
+
+    /// Records the cross-validation of the calibration (`calibrate --cross-validate`) in the
+    /// provenance: the halves' frames, how far their projections differ (RMS and worst, px,
+    /// after the rotation between them) and that against what their σ predict.
+    pub fn record_cross_validation(&mut self, cv: &crate::calibrate::CrossValidation) {
+        self.provenance.insert(
+            "cross_validation".into(),
+            serde_json::json!({
+                "frames": cv.frames,
+                "rms_px": cv.rotated_rms_px,
+                "max_px": cv.rotated_max_px,
+                "predicted_rms_px": cv.predicted_rms_px,
+                "ratio": cv.ratio,
+            }),
+        );
     }
 
     /// Pairs of estimated terms whose correlation exceeds [`HIGH_CORRELATION`] in magnitude:

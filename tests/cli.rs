@@ -831,3 +831,41 @@ fn fit_cylinder_in_a_region_of_a_real_scan() {
         "{stderr}"
     );
 }
+
+/// `--version` names the package version, the commit the binary was built from (the
+/// checkout's HEAD, when the tests run in one) and the build date.
+#[test]
+fn version_names_the_commit_and_the_build_date() {
+    let dir = tempfile::tempdir().unwrap();
+    let (code, stdout, stderr) = pipemeasure(dir.path(), &["--version"], &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let line = stdout.trim();
+    let prefix = format!("pipemeasure {} (commit ", env!("CARGO_PKG_VERSION"));
+    let rest = line
+        .strip_prefix(&prefix)
+        .unwrap_or_else(|| panic!("{line}"));
+    let (commit, date) = rest
+        .strip_suffix(')')
+        .and_then(|r| r.split_once(", built "))
+        .unwrap_or_else(|| panic!("{line}"));
+    let head = std::process::Command::new("git")
+        .args(["rev-parse", "--short=12", "HEAD"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .ok()
+        .filter(|o| o.status.success())
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string());
+    match head {
+        Some(head) => assert_eq!(commit, head, "{line}"),
+        None => assert_eq!(commit, "unknown", "{line}"),
+    }
+    let parts: Vec<&str> = date.split('-').collect();
+    assert!(
+        parts.len() == 3
+            && parts[0].len() == 4
+            && parts.iter().all(|p| p.parse::<u32>().is_ok())
+            && (1..=12).contains(&parts[1].parse::<u32>().unwrap())
+            && (1..=31).contains(&parts[2].parse::<u32>().unwrap()),
+        "{line}"
+    );
+}

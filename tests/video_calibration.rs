@@ -103,6 +103,33 @@ fn a_rolling_shutter_video_calibrates_to_the_true_camera_and_readout_time() {
     // each frame's tremor error once per target) to what the frames scatter.
     assert!(z <= 3.0, "readout {z:.2} × its σ off\n{log}");
 
+    // `profile show` says what the profile holds: the readout time ± σ and that it was
+    // estimated, the order of the frames' motions, the jackknife that checked the σ.
+    let order = rolling.provenance["motion_order"]
+        .as_u64()
+        .expect("the motions' order recorded");
+    assert!((1..=4).contains(&order), "{order}");
+    let shown_path = dir.path().join("rolling.json");
+    let (code, shown, err) = pipemeasure(
+        dir.path(),
+        &["profile", "show", shown_path.to_str().unwrap()],
+        &[],
+    );
+    assert_eq!(code, 0, "{err}");
+    let line = format!(
+        "readout {:.3} ± {:.3} ms, estimated from the frames' video neighbours; frames' motions of order {order}",
+        1e3 * readout.readout_s,
+        1e3 * readout.readout_std_s
+    );
+    assert!(shown.contains(&line), "{line}\n{shown}");
+    if let Some(j) = rolling.provenance.get("frame_jackknife") {
+        let factor = j["variance_inflation"].as_f64().unwrap();
+        assert!(
+            shown.contains(&format!("covariance × {factor:.3}")),
+            "{shown}"
+        );
+    }
+
     // `experiments --only video-labs` scores the same lab through the library: the rolling-shutter
     // calibration the command gave, to rounding, and beside it the same frames with a
     // global-shutter camera (`--rolling-shutter off`), which the motions bend by pixels.

@@ -73,6 +73,17 @@ pub enum MotionOrder {
 }
 
 impl MotionOrder {
+    /// The order as a number: 1 (velocities) to 4 (snaps).
+    #[must_use]
+    pub fn number(self) -> u8 {
+        match self {
+            MotionOrder::First => 1,
+            MotionOrder::Second => 2,
+            MotionOrder::Third => 3,
+            MotionOrder::Fourth => 4,
+        }
+    }
+
     /// Adjusted values: 6 per order.
     #[must_use]
     pub fn values(self) -> usize {
@@ -148,6 +159,23 @@ impl Motion {
             linear_jerk: at(5),
             angular_snap: at(6),
             linear_snap: at(7),
+        }
+    }
+
+    /// The order of the motion: the highest derivative that is not zero (a motion of a lower
+    /// order adjusted as a higher one keeps its higher terms exactly zero).
+    #[must_use]
+    pub fn order(&self) -> MotionOrder {
+        let moves =
+            |a: &Vector3<f64>, b: &Vector3<f64>| a.iter().chain(b.iter()).any(|v| *v != 0.0);
+        if moves(&self.angular_snap, &self.linear_snap) {
+            MotionOrder::Fourth
+        } else if moves(&self.angular_jerk, &self.linear_jerk) {
+            MotionOrder::Third
+        } else if moves(&self.angular_acceleration, &self.linear_acceleration) {
+            MotionOrder::Second
+        } else {
+            MotionOrder::First
         }
     }
 
@@ -399,6 +427,23 @@ pub fn project_with_jacobians(
 
 #[cfg(test)]
 mod tests {
+
+    /// A motion's order is its highest derivative that is not zero, whatever order it was
+    /// adjusted at.
+    #[test]
+    fn a_motion_s_order_is_its_highest_non_zero_derivative() {
+        let mut values = [0.0; MAX_VALUES];
+        assert_eq!(Motion::from_slice(&values).order(), MotionOrder::First);
+        values[1] = 0.1;
+        assert_eq!(Motion::from_slice(&values).order(), MotionOrder::First);
+        values[9] = 0.2; // a linear acceleration
+        assert_eq!(Motion::from_slice(&values).order(), MotionOrder::Second);
+        values[14] = -0.3; // an angular jerk
+        assert_eq!(Motion::from_slice(&values).order(), MotionOrder::Third);
+        values[23] = 1e-9; // a linear snap
+        assert_eq!(Motion::from_slice(&values).order(), MotionOrder::Fourth);
+        assert_eq!(MotionOrder::Fourth.number(), 4);
+    }
     use super::*;
 
     fn camera() -> Intrinsics {

@@ -38,6 +38,16 @@ use std::process::ExitCode;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 
+/// `pipemeasure --version`: the package version, the commit and the build date (`build.rs`).
+const VERSION: &str = concat!(
+    env!("CARGO_PKG_VERSION"),
+    " (commit ",
+    env!("PIPEMEASURE_COMMIT"),
+    ", built ",
+    env!("PIPEMEASURE_BUILD_DATE"),
+    ")"
+);
+
 /// pipemeasure: metric pipe measurements from phone video.
 ///
 /// Main job: `pipemeasure --device NAME CLOUD.ply` measures the pipe in a site's dense cloud
@@ -46,7 +56,7 @@ use clap::{Parser, Subcommand};
 #[derive(Debug, Parser)]
 #[command(
     name = "pipemeasure",
-    version,
+    version = VERSION,
     about,
     long_about = None,
     after_help = "Main job: `pipemeasure --device NAME CLOUD.ply` measures the pipe in a site's dense cloud.\nFirst time? `pipemeasure demo` runs the whole product on simulated data.",

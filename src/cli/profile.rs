@@ -182,6 +182,14 @@ fn show(p: &Profile, path: &str) -> String {
             }
         );
     }
+    let _ = writeln!(s, "\n{}", rolling_shutter_line(p));
+    let checks = checks_lines(p);
+    if !checks.is_empty() {
+        let _ = writeln!(s, "checks");
+        for c in checks {
+            let _ = writeln!(s, "  {c}");
+        }
+    }
     if !p.provenance.is_empty() {
         let _ = writeln!(s, "\nprovenance");
         for (k, v) in &p.provenance {
@@ -190,6 +198,54 @@ fn show(p: &Profile, path: &str) -> String {
         }
     }
     s
+}
+
+/// The rolling shutter as the profile holds it: the readout time ± σ, whether it was
+/// estimated or given, and the order of the frames' motions.
+fn rolling_shutter_line(p: &Profile) -> String {
+    let Some(r) = &p.rolling_shutter else {
+        return "rolling shutter  not modelled (no readout time: measured as a global shutter unless --readout-time is given)".into();
+    };
+    let order = p
+        .provenance
+        .get("motion_order")
+        .and_then(serde_json::Value::as_u64)
+        .map_or_else(String::new, |o| format!("; frames' motions of order {o}"));
+    if r.estimated {
+        format!(
+            "rolling shutter  readout {:.3} ± {:.3} ms, estimated from the frames' video neighbours{order}",
+            r.readout_s * 1e3,
+            r.readout_std_s * 1e3
+        )
+    } else {
+        format!(
+            "rolling shutter  readout {:.3} ms, given (held in the calibration){order}",
+            r.readout_s * 1e3
+        )
+    }
+}
+
+/// The checks the calibration ran, as the profile records them: the jackknife over the frames
+/// and the cross-validation of two halves.
+fn checks_lines(p: &Profile) -> Vec<String> {
+    let mut out = Vec::new();
+    let number = |v: &serde_json::Value, k: &str| v.get(k).and_then(serde_json::Value::as_f64);
+    if let Some(j) = p.provenance.get("frame_jackknife") {
+        if let (Some(f), Some(g)) = (number(j, "variance_inflation"), number(j, "groups")) {
+            out.push(format!(
+                "jackknife over {g:.0} groups of frames: covariance × {f:.3} (σ × {:.3})",
+                f.sqrt()
+            ));
+        }
+    }
+    if let Some(c) = p.provenance.get("cross_validation") {
+        if let (Some(rms), Some(ratio)) = (number(c, "rms_px"), number(c, "ratio")) {
+            out.push(format!(
+                "cross-validation: the halves' projections {rms:.4} px RMS apart, {ratio:.2} × what their σ predict"
+            ));
+        }
+    }
+    out
 }
 
 fn conversion_note<T>(c: &Converted<T>) -> String {

@@ -5,6 +5,9 @@
 //! Frames are still, global-shutter photographs at the scenes' stations by default; with video
 //! options ([`video`]) the stations become a continuous hand-held [`trajectory`] filmed by a
 //! rolling-shutter camera with motion blur ([`shutter`], [`render::render_radiance_moving`]).
+//!
+//! The scenes' entry points are re-exported here: [`simulate_lab`], [`simulate_site`] and
+//! [`simulate_plant`] with their settings, and the [`Truth`] they write.
 
 pub mod bundle;
 pub mod dense;
@@ -27,3 +30,12 @@ pub mod trajectory;
 pub mod truth;
 pub mod video;
 pub mod video_config;
+
+pub use lab::{LabConfig, WallTexture};
+pub use options::{SfmSource, SimError, SimulateOptions};
+pub use plant::{PlantLayout, PlantScanConfig, simulate_plant};
+pub use render::RenderConfig;
+pub use simulate::{SiteOptions, simulate_lab, simulate_site};
+pub use site::SiteConfig;
+pub use truth::Truth;
+pub use video_config::VideoConfig;

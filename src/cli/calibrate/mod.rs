@@ -117,9 +117,9 @@ pub fn run(args: &Args, globals: Globals) -> Result<()> {
         || "colmap (run by pipemeasure)".to_string(),
         |p| p.display().to_string(),
     );
-    let profile = Profile::from_calibration(
+    let profile = Profile::from_device_calibration(
         &args.device,
-        cal,
+        &device,
         size,
         &CalibrationSource {
             command: std::env::args().collect::<Vec<_>>().join(" "),
