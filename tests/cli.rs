@@ -869,3 +869,68 @@ fn version_names_the_commit_and_the_build_date() {
         "{line}"
     );
 }
+
+/// The man pages committed in `man/` are what the command line's definitions generate now
+/// (`pipemeasure man man` regenerates them after a change to the options).
+#[test]
+fn the_committed_man_pages_are_current() {
+    let dir = tempfile::tempdir().unwrap();
+    let (code, _, stderr) = pipemeasure(dir.path(), &["man", "pages"], &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let committed = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("man");
+    let list = |d: &std::path::Path| -> Vec<String> {
+        let mut names: Vec<String> = std::fs::read_dir(d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        names
+    };
+    let generated = list(&dir.path().join("pages"));
+    assert_eq!(
+        generated,
+        list(&committed),
+        "run `pipemeasure man man` and commit man/"
+    );
+    assert!(generated.contains(&"pipemeasure-calibrate.1".to_string()));
+    for name in generated {
+        let now = std::fs::read_to_string(dir.path().join("pages").join(&name)).unwrap();
+        let was = std::fs::read_to_string(committed.join(&name)).unwrap();
+        assert!(
+            now == was,
+            "man/{name} is out of date: run `pipemeasure man man`"
+        );
+    }
+}
+
+/// `completions` prints a script each shell accepts that completes the subcommands and the
+/// options of the main command.
+#[test]
+fn completions_complete_subcommands_and_options() {
+    let dir = tempfile::tempdir().unwrap();
+    for shell in ["bash", "zsh", "fish"] {
+        let (code, script, stderr) = pipemeasure(dir.path(), &["completions", shell], &[]);
+        assert_eq!(code, 0, "{shell}: {stderr}");
+        for word in ["calibrate", "pipes", "tls-targets", "readout-time"] {
+            assert!(script.contains(word), "{shell}: no {word}");
+        }
+    }
+    let (code, script, _) = pipemeasure(dir.path(), &["completions", "bash"], &[]);
+    assert_eq!(code, 0);
+    // bash parses it (when bash is there to ask).
+    let file = dir.path().join("pipemeasure.bash");
+    std::fs::write(&file, script).unwrap();
+    if let Ok(out) = std::process::Command::new("bash")
+        .arg("-n")
+        .arg(&file)
+        .output()
+    {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let (code, _, stderr) = pipemeasure(dir.path(), &["completions", "tcsh"], &[]);
+    assert_eq!(code, 2, "{stderr}");
+}

@@ -23,6 +23,7 @@ mod detect;
 mod experiments;
 mod fit_cylinder;
 mod frames;
+mod generate;
 mod hints;
 mod matching;
 mod measure;
@@ -106,6 +107,11 @@ enum Command {
     /// Simulate the calibration lab or a pipe site with exact ground truth.
     #[command(subcommand)]
     Simulate(simulate::Command),
+    /// Print a shell completion script (bash, zsh, fish, elvish, powershell), e.g.
+    /// `pipemeasure completions bash > ~/.local/share/bash-completion/completions/pipemeasure`.
+    Completions(generate::CompletionsArgs),
+    /// Write the man pages (`pipemeasure.1` and one per subcommand) into a folder.
+    Man(generate::ManArgs),
 }
 
 /// Global options every subcommand sees.
@@ -221,6 +227,8 @@ fn run(command: Command, globals: Globals) -> Result<()> {
         Command::Pipes(args) => pipes::run(&args, globals),
         Command::Profile(cmd) => profile::run(&cmd),
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
+        Command::Completions(args) => generate::completions(&args),
+        Command::Man(args) => generate::man(&args),
     }
 }
 
