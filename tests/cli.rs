@@ -934,3 +934,46 @@ fn completions_complete_subcommands_and_options() {
     let (code, _, stderr) = pipemeasure(dir.path(), &["completions", "tcsh"], &[]);
     assert_eq!(code, 2, "{stderr}");
 }
+
+/// `doctor` lists COLMAP, ffmpeg and ffprobe with their versions, the profile folders with
+/// their profiles and the machine; with a `PATH` that holds none of the programs it names each
+/// with its install command and exits 1, and `calibrate` without `--sfm` stops before any work
+/// with the same advice.
+#[test]
+fn doctor_names_each_program_and_calibrate_checks_them_first() {
+    let dir = tempfile::tempdir().unwrap();
+    let (code, stdout, stderr) = common::pipemeasure_with_profiles(dir.path(), &["doctor"]);
+    for program in ["colmap", "ffmpeg", "ffprobe"] {
+        assert!(stdout.contains(program), "{stdout}");
+    }
+    assert!(stdout.contains("p30"), "{stdout}");
+    assert!(stdout.contains("cores"), "{stdout}");
+    if stdout.contains("MISSING") {
+        assert_eq!(code, 1, "{stderr}");
+    } else {
+        assert_eq!(code, 0, "{stderr}");
+    }
+    let empty = dir.path().join("bin");
+    std::fs::create_dir(&empty).unwrap();
+    let path = empty.to_str().unwrap();
+    let (code, stdout, stderr) = pipemeasure(dir.path(), &["doctor"], &[("PATH", path)]);
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stdout.contains("MISSING  colmap")
+            && stdout.contains("sudo apt-get install -y colmap")
+            && stdout.contains("sudo apt-get install -y ffmpeg"),
+        "{stdout}"
+    );
+    std::fs::create_dir(dir.path().join("frames")).unwrap();
+    let (code, _, stderr) = pipemeasure(
+        dir.path(),
+        &["calibrate", "--device", "x", "--frames", "frames"],
+        &[("PATH", path)],
+    );
+    assert_eq!(code, 1, "{stderr}");
+    assert!(
+        stderr.contains("`colmap` is not installed") && stderr.contains("--sfm DIR"),
+        "{stderr}"
+    );
+    assert!(!dir.path().join("calibrations").exists());
+}

@@ -20,6 +20,7 @@ macro_rules! out {
 mod calibrate;
 mod demo;
 mod detect;
+mod doctor;
 mod experiments;
 mod fit_cylinder;
 mod frames;
@@ -112,6 +113,9 @@ enum Command {
     Completions(generate::CompletionsArgs),
     /// Write the man pages (`pipemeasure.1` and one per subcommand) into a folder.
     Man(generate::ManArgs),
+    /// Check what the product needs before a long run: COLMAP (and whether it can do dense
+    /// stereo), ffmpeg, the profile folders and profiles, the cores and memory.
+    Doctor(doctor::Args),
 }
 
 /// Global options every subcommand sees.
@@ -229,6 +233,7 @@ fn run(command: Command, globals: Globals) -> Result<()> {
         Command::Simulate(cmd) => simulate::run(&cmd, globals),
         Command::Completions(args) => generate::completions(&args),
         Command::Man(args) => generate::man(&args),
+        Command::Doctor(args) => doctor::run(&args),
     }
 }
 

@@ -14,6 +14,7 @@ pub mod observations;
 pub mod ply;
 pub mod sidecar;
 pub mod tls;
+pub mod tools;
 pub mod vis;
 
 pub use error::{Location, ReadError, ReadErrorKind, WriteError};

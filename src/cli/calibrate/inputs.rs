@@ -12,6 +12,7 @@ use pipemeasure::detect::DetectConfig;
 use pipemeasure::io::atomic::check_writable_dir;
 use pipemeasure::io::colmap::{ColmapOptions, ColmapProgress, Reconstruction};
 use pipemeasure::io::tls::TlsTarget;
+use pipemeasure::io::tools::{Tool, probe};
 use pipemeasure::profile::{CALIBRATIONS_DIR, backup_path, validate_device_name};
 
 use super::super::{progress, usage};
@@ -114,6 +115,28 @@ pub(super) fn preflight(args: &Args) -> Result<(Option<Vec<TlsTarget>>, PathBuf)
             bail!("--frames {}: not a folder", args.frames().display())
         }
         _ => {}
+    }
+    // The programs the options need, before minutes of work (`pipemeasure doctor` lists all).
+    let needed: &[Tool] = match (&args.video, &args.sfm) {
+        (Some(_), None) => &[Tool::Ffmpeg, Tool::Ffprobe, Tool::Colmap],
+        (Some(_), Some(_)) => &[Tool::Ffmpeg, Tool::Ffprobe],
+        (None, None) => &[Tool::Colmap],
+        (None, Some(_)) => &[],
+    };
+    for &tool in needed {
+        if !probe(tool).found() {
+            bail!(
+                "`{}` is not installed or not on PATH, and it is needed for {} (Debian/Ubuntu: `{}`){}",
+                tool.program(),
+                tool.needed_for(),
+                tool.install(),
+                if tool == Tool::Colmap {
+                    "; or pass the sparse model of the frames with --sfm DIR"
+                } else {
+                    "; or extract the frames yourself and pass --frames DIR"
+                }
+            );
+        }
     }
     // Read the check points first: a bad file fails before minutes of calibration.
     let check_list = args
