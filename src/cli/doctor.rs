@@ -17,17 +17,7 @@ fn gb(bytes: u64) -> f64 {
 
 /// Prints the checks; an error (exit code 1) naming what is missing when a program is.
 pub fn run(_: &Args) -> Result<()> {
-    outln!(
-        "pipemeasure {}",
-        concat!(
-            env!("CARGO_PKG_VERSION"),
-            " (commit ",
-            env!("PIPEMEASURE_COMMIT"),
-            ", built ",
-            env!("PIPEMEASURE_BUILD_DATE"),
-            ")"
-        )
-    );
+    outln!("pipemeasure {}", super::VERSION);
     let mut missing = Vec::new();
     for tool in Tool::ALL {
         let status = probe(tool);

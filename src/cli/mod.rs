@@ -41,7 +41,7 @@ use anyhow::Result;
 use clap::{Parser, Subcommand};
 
 /// `pipemeasure --version`: the package version, the commit and the build date (`build.rs`).
-const VERSION: &str = concat!(
+pub(crate) const VERSION: &str = concat!(
     env!("CARGO_PKG_VERSION"),
     " (commit ",
     env!("PIPEMEASURE_COMMIT"),
