@@ -580,13 +580,12 @@ pub fn search_dirs() -> Vec<PathBuf> {
     dirs
 }
 
-/// Device names available in the search folders (stems of the `*.json` files; a folder named
-/// `x.json` is no profile), sorted, unique.
+/// Device names in the folder `dir` (stems of its `*.json` files; a folder named `x.json` is
+/// no profile), sorted; none when it cannot be read.
 #[must_use]
-pub fn available_devices() -> Vec<String> {
-    let mut names: Vec<String> = search_dirs()
-        .iter()
-        .filter_map(|d| std::fs::read_dir(d).ok())
+pub fn devices_in(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
         .flatten()
         .filter_map(|e| {
             let p = e.ok()?.path();
@@ -594,6 +593,14 @@ pub fn available_devices() -> Vec<String> {
                 .then(|| p.file_stem()?.to_str().map(str::to_string))?
         })
         .collect();
+    names.sort();
+    names
+}
+
+/// Device names available in the search folders ([`devices_in`] each), sorted, unique.
+#[must_use]
+pub fn available_devices() -> Vec<String> {
+    let mut names: Vec<String> = search_dirs().iter().flat_map(|d| devices_in(d)).collect();
     names.sort();
     names.dedup();
     names

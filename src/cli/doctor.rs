@@ -4,7 +4,7 @@
 
 use anyhow::Result;
 use pipemeasure::io::tools::{Tool, machine, probe};
-use pipemeasure::profile::search_dirs;
+use pipemeasure::profile::{devices_in, search_dirs};
 
 /// Arguments of `doctor`.
 #[derive(Debug, clap::Args)]
@@ -45,18 +45,7 @@ pub fn run(_: &Args) -> Result<()> {
     }
     outln!("profiles, searched in this order:");
     for dir in search_dirs() {
-        let mut names: Vec<String> = std::fs::read_dir(&dir)
-            .map(|entries| {
-                entries
-                    .filter_map(|e| {
-                        let p = e.ok()?.path();
-                        (p.extension()? == "json" && p.is_file())
-                            .then(|| p.file_stem()?.to_str().map(str::to_string))?
-                    })
-                    .collect()
-            })
-            .unwrap_or_default();
-        names.sort();
+        let names = devices_in(&dir);
         outln!(
             "         {}: {}",
             dir.display(),
