@@ -66,7 +66,8 @@ impl Tool {
 pub struct ToolStatus {
     /// The tool.
     pub tool: Tool,
-    /// Its version line (the first line it prints), `None` when it is not on `PATH`.
+    /// Its version line (the first line it prints), `None` when it is not on `PATH` or fails
+    /// to print it (a broken install).
     pub version: Option<String>,
     /// COLMAP only: whether this build has CUDA (dense stereo needs it); `None` for the others
     /// and when it does not say.
@@ -81,14 +82,15 @@ impl ToolStatus {
     }
 }
 
-/// Runs `tool` to read its version: its first line of output (stdout, else stderr), and for
+/// Runs `tool` to read its version (a program that exits with an error counts as missing):
+/// its first line of output (stdout, else stderr), and for
 /// COLMAP whether its build line says `with CUDA` or `without CUDA`.
 #[must_use]
 pub fn probe(tool: Tool) -> ToolStatus {
-    let Ok(out) = Command::new(tool.program())
+    let ran = Command::new(tool.program())
         .args(tool.version_args())
-        .output()
-    else {
+        .output();
+    let Some(out) = ran.ok().filter(|o| o.status.success()) else {
         return ToolStatus {
             tool,
             version: None,

@@ -29,12 +29,7 @@ pub(super) fn sfm_model(args: &Args, quiet: bool) -> Result<Reconstruction> {
             .unwrap_or_else(|| Path::new("."))
             .join("colmap")
     });
-    if !pipemeasure::io::colmap::colmap_available() {
-        bail!(
-            "no --sfm model given and `colmap` is not on PATH: install COLMAP (Debian/Ubuntu: \
-             `apt-get install colmap`) or pass the sparse model of the frames with --sfm DIR"
-        );
-    }
+    // COLMAP's presence was checked in the preflight (and the run checks it again).
     if !quiet {
         eprintln!(
             "running COLMAP (features at up to {} px, sequential matching, mapping) into {}",

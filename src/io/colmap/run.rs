@@ -100,10 +100,7 @@ impl Default for ColmapOptions {
 /// Whether `colmap` can be run.
 #[must_use]
 pub fn colmap_available() -> bool {
-    Command::new("colmap")
-        .arg("help")
-        .output()
-        .is_ok_and(|o| o.status.success())
+    crate::io::tools::probe(crate::io::tools::Tool::Colmap).found()
 }
 
 /// Where a COLMAP run is, read from its own log (COLMAP 3.8's messages).
