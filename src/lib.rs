@@ -4,7 +4,7 @@
 //! mechanical pipes" (`../shared/paper.md`), with two jobs:
 //!
 //! * **calibrate** a phone once per device from a video of a lab corner covered with circular
-//!   targets, producing a device profile (`calibrations/NAME.json`, [`profile::Profile`]);
+//!   targets, producing a device profile (`NAME.json` in a profile folder, [`profile::Profile`]);
 //! * **measure** a pipe on site: undistort the frames with the profile, scale the dense cloud
 //!   from targets against TLS coordinates, and fit a robust cylinder.
 //!

@@ -117,53 +117,150 @@ fn undistort_bad_inputs_fail_cleanly() {
     assert!(stderr.contains("unknown device `nokia`"), "{stderr}");
 }
 
+/// `--device NAME` from a folder without profiles found none (only `$PIPEMEASURE_CALIBRATIONS`
+/// and `./calibrations/` were searched): the lookup is the env folder, `./calibrations/`, the
+/// user data folder, then the presets built in, first found wins.
 #[test]
-fn device_lookup_uses_env_then_calibrations_and_lists_devices() {
+fn device_lookup_searches_env_working_folder_user_data_then_presets() {
     let dir = tempfile::tempdir().unwrap();
     let env_dir = dir.path().join("env");
     let local = dir.path().join("calibrations");
-    std::fs::create_dir_all(&env_dir).unwrap();
-    std::fs::create_dir_all(&local).unwrap();
+    let data = dir.path().join("data");
+    let user = data.join("pipemeasure/calibrations");
+    for d in [&env_dir, &local, &user] {
+        std::fs::create_dir_all(d).unwrap();
+    }
     let cam = preset_camera(&P30, 320, 180);
+    // alpha in all three folders with different c; beta in ./calibrations and the user's;
+    // gamma only in the user's; p30 in the user's, shadowing the preset.
     let mut a = Profile::uncalibrated("alpha", &cam, BTreeMap::new());
     a.write(&env_dir.join("alpha.json"), false).unwrap();
     a.intrinsics.c += 1.0;
     a.write(&local.join("alpha.json"), false).unwrap();
-    Profile::uncalibrated("beta", &cam, BTreeMap::new())
-        .write(&local.join("beta.json"), false)
+    a.intrinsics.c += 1.0;
+    a.write(&user.join("alpha.json"), false).unwrap();
+    let b = Profile::uncalibrated("beta", &cam, BTreeMap::new());
+    b.write(&local.join("beta.json"), false).unwrap();
+    b.write(&user.join("beta.json"), false).unwrap();
+    Profile::uncalibrated("gamma", &cam, BTreeMap::new())
+        .write(&user.join("gamma.json"), false)
         .unwrap();
-    let env = [("PIPEMEASURE_CALIBRATIONS", env_dir.to_str().unwrap())];
-
-    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "show", "alpha", "--json"], &env);
-    assert_eq!(code, 0);
-    let shown = Profile::from_json(&stdout, Path::new("stdout")).unwrap();
-    assert_eq!(
-        shown.intrinsics.c, cam.intrinsics.c,
-        "the env folder wins over ./calibrations"
-    );
-
-    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "show", "alpha", "--json"], &[]);
-    assert_eq!(code, 0);
-    assert_eq!(
+    Profile::uncalibrated("p30", &cam, BTreeMap::new())
+        .write(&user.join("p30.json"), false)
+        .unwrap();
+    let xdg = ("XDG_DATA_HOME", data.to_str().unwrap());
+    let all = [("PIPEMEASURE_CALIBRATIONS", env_dir.to_str().unwrap()), xdg];
+    let c_of = |cwd: &Path, name: &str, env: &[(&str, &str)]| {
+        let (code, stdout, stderr) = pipemeasure(cwd, &["profile", "show", name, "--json"], env);
+        assert_eq!(code, 0, "{name}: {stderr}");
         Profile::from_json(&stdout, Path::new("stdout"))
             .unwrap()
             .intrinsics
-            .c,
-        cam.intrinsics.c + 1.0
+            .c
+    };
+    let c = cam.intrinsics.c;
+    assert_eq!(c_of(dir.path(), "alpha", &all), c, "the env folder first");
+    assert_eq!(
+        c_of(dir.path(), "alpha", &[xdg]),
+        c + 1.0,
+        "./calibrations next"
+    );
+    assert_eq!(
+        c_of(&env_dir, "alpha", &[xdg]),
+        c + 2.0,
+        "the user's folder next"
+    );
+    assert_eq!(
+        c_of(&env_dir, "p30", &[xdg]),
+        c,
+        "the user's p30 shadows the preset"
+    );
+    // From a folder without profiles and no user data, the preset is the repository's file.
+    let (code, stdout, stderr) = pipemeasure(&env_dir, &["profile", "show", "p30", "--json"], &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let shipped = Profile::read(&Path::new(common::CALIBRATIONS).join("p30.json")).unwrap();
+    assert_eq!(
+        Profile::from_json(&stdout, Path::new("stdout")).unwrap(),
+        shipped
+    );
+    let (code, stdout, _) = pipemeasure(&env_dir, &["profile", "show", "s10"], &[]);
+    assert_eq!(code, 0);
+    assert!(stdout.contains("(built in)/s10.json, built in"), "{stdout}");
+
+    // An unknown name lists every folder searched and every device, presets included.
+    let (code, _, stderr) = pipemeasure(dir.path(), &["profile", "show", "delta"], &all);
+    assert_eq!(code, 1);
+    for part in [
+        format!("{} ($PIPEMEASURE_CALIBRATIONS)", env_dir.display()),
+        "calibrations (./calibrations)".to_string(),
+        format!("{} (user data folder)", user.display()),
+        "nor a preset built in".to_string(),
+        "available devices: alpha, beta, gamma, iphone11, p30, s10".to_string(),
+    ] {
+        assert!(stderr.contains(&part), "{part}: {stderr}");
+    }
+
+    // The list: every profile with its origin, the shadowed ones marked, names sorted.
+    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "list"], &all);
+    assert_eq!(code, 0);
+    let rows: Vec<(&str, &str, Option<&str>)> = stdout
+        .lines()
+        .map(|l| {
+            let f: Vec<&str> = l.split('\t').collect();
+            (f[0], f[1], f.get(3).copied())
+        })
+        .collect();
+    assert_eq!(
+        rows,
+        [
+            ("alpha", "$PIPEMEASURE_CALIBRATIONS", None),
+            (
+                "alpha",
+                "./calibrations",
+                Some("shadowed by $PIPEMEASURE_CALIBRATIONS")
+            ),
+            (
+                "alpha",
+                "user data folder",
+                Some("shadowed by $PIPEMEASURE_CALIBRATIONS")
+            ),
+            ("beta", "./calibrations", None),
+            (
+                "beta",
+                "user data folder",
+                Some("shadowed by ./calibrations")
+            ),
+            ("gamma", "user data folder", None),
+            ("iphone11", "built in", None),
+            ("p30", "user data folder", None),
+            ("p30", "built in", Some("shadowed by user data folder")),
+            ("s10", "built in", None),
+        ]
     );
 
-    let (code, _, stderr) = pipemeasure(dir.path(), &["profile", "show", "gamma"], &env);
+    // `calibrate` without --out writes to $PIPEMEASURE_CALIBRATIONS when it is set (an existing
+    // profile there is what it refuses to replace), else to the user's folder.
+    std::fs::create_dir(dir.path().join("frames")).unwrap();
+    let calibrate = [
+        "calibrate",
+        "--device",
+        "alpha",
+        "--frames",
+        "frames",
+        "--sfm",
+        "x",
+    ];
+    let (code, _, stderr) = pipemeasure(dir.path(), &calibrate, &all);
     assert_eq!(code, 1);
     assert!(
-        stderr.contains("available devices: alpha, beta"),
+        stderr.contains(&format!("{} exists", env_dir.join("alpha.json").display())),
         "{stderr}"
     );
-
-    let (code, stdout, _) = pipemeasure(dir.path(), &["profile", "list"], &env);
-    assert_eq!(code, 0);
+    let (code, _, stderr) = pipemeasure(dir.path(), &calibrate, &[xdg]);
+    assert_eq!(code, 1);
     assert!(
-        stdout.contains("alpha\t") && stdout.contains("beta\t"),
-        "{stdout}"
+        stderr.contains(&format!("{} exists", user.join("alpha.json").display())),
+        "{stderr}"
     );
 }
 
@@ -414,16 +511,21 @@ fn calibrate_command_writes_a_profile_and_a_report() {
         "lab/frames",
         "--sfm",
         "lab/sparse",
-        "--out",
-        "prof.json",
         "--report",
         "report",
         "--quiet",
     ];
-    let (code, stdout, stderr) = pipemeasure(dir.path(), &args, &[]);
+    // Without --out the profile goes to the user's data folder.
+    let data = dir.path().join("data");
+    let env = [("XDG_DATA_HOME", data.to_str().unwrap())];
+    let written = data.join("pipemeasure/calibrations/p30test.json");
+    let (code, stdout, stderr) = pipemeasure(dir.path(), &args, &env);
     assert_eq!(code, 0, "{stderr}\n{stdout}");
-    assert!(stdout.contains("profile written to prof.json"), "{stdout}");
-    let profile = pipemeasure::profile::Profile::read(&dir.path().join("prof.json")).unwrap();
+    assert!(
+        stdout.contains(&format!("profile written to {}", written.display())),
+        "{stdout}"
+    );
+    let profile = pipemeasure::profile::Profile::read(&written).unwrap();
     let truth = pipemeasure::sim::truth::Truth::read(&dir.path().join("lab/truth.json")).unwrap();
     let t = truth.camera.intrinsics;
     let e = profile.intrinsics;
@@ -450,15 +552,47 @@ fn calibrate_command_writes_a_profile_and_a_report() {
     ] {
         assert!(dir.path().join("report").join(f).is_file(), "{f} missing");
     }
-    // A second run refuses to overwrite; --force keeps a backup.
-    let (code, _, stderr) = pipemeasure(dir.path(), &args, &[]);
+    // A second run refuses to overwrite; --force keeps a backup beside the profile.
+    let (code, _, stderr) = pipemeasure(dir.path(), &args, &env);
     assert_eq!(code, 1);
     assert!(stderr.contains("--force"), "{stderr}");
+    // A ./calibrations/p30test.json here is found first from this folder: said.
+    std::fs::create_dir(dir.path().join("calibrations")).unwrap();
+    std::fs::copy(&written, dir.path().join("calibrations/p30test.json")).unwrap();
     let mut forced = args.to_vec();
     forced.push("--force");
-    let (code, _, stderr) = pipemeasure(dir.path(), &forced, &[]);
+    let (code, _, stderr) = pipemeasure(dir.path(), &forced, &env);
     assert_eq!(code, 0, "{stderr}");
-    assert!(dir.path().join("prof.json.1.bak").is_file());
+    assert!(
+        data.join("pipemeasure/calibrations/p30test.json.1.bak")
+            .is_file()
+    );
+    assert!(
+        stderr.contains(
+            "note: from this folder `--device p30test` finds calibrations/p30test.json \
+             (./calibrations) first"
+        ),
+        "{stderr}"
+    );
+    // From any other folder the name finds it, in the user data folder.
+    let elsewhere = dir.path().join("elsewhere");
+    std::fs::create_dir(&elsewhere).unwrap();
+    let (code, stdout, stderr) = pipemeasure(&elsewhere, &["profile", "list"], &env);
+    assert_eq!(code, 0, "{stderr}");
+    assert!(
+        stdout.contains(&format!(
+            "p30test\tuser data folder\t{}\n",
+            written.display()
+        )),
+        "{stdout}"
+    );
+    let (code, stdout, _) =
+        pipemeasure(&elsewhere, &["profile", "show", "p30test", "--json"], &env);
+    assert_eq!(code, 0);
+    assert_eq!(
+        stdout.trim(),
+        std::fs::read_to_string(&written).unwrap().trim()
+    );
 }
 
 #[test]

@@ -4,7 +4,7 @@
 
 use anyhow::Result;
 use pipemeasure::io::tools::{Tool, machine, probe};
-use pipemeasure::profile::{devices_in, search_dirs};
+use pipemeasure::profile::{PRESETS, devices_in, search_folders};
 
 /// Arguments of `doctor`.
 #[derive(Debug, clap::Args)]
@@ -44,12 +44,13 @@ pub fn run(_: &Args) -> Result<()> {
         }
     }
     outln!("profiles, searched in this order:");
-    for dir in search_dirs() {
-        let names = devices_in(&dir);
+    for folder in search_folders() {
+        let names = devices_in(&folder.path);
         outln!(
-            "         {}: {}",
-            dir.display(),
-            if !dir.is_dir() {
+            "         {} ({}): {}",
+            folder.path.display(),
+            folder.origin,
+            if !folder.path.is_dir() {
                 "no such folder".to_string()
             } else if names.is_empty() {
                 "none".to_string()
@@ -58,6 +59,8 @@ pub fn run(_: &Args) -> Result<()> {
             }
         );
     }
+    let presets: Vec<&str> = PRESETS.iter().map(|(n, _)| *n).collect();
+    outln!("         built in: {}", presets.join(", "));
     let m = machine();
     let memory = match (m.memory_total, m.memory_available) {
         (Some(t), Some(a)) => format!("{:.1} GB memory, {:.1} GB available", gb(t), gb(a)),

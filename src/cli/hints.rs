@@ -86,8 +86,9 @@ fn profile(e: &ProfileError) -> Option<String> {
             backup_path(path, 1).display()
         ),
         ProfileError::NotAName(name) => format!(
-            "`{name}` is not a device name: a name has no path separator, does not start with `.` and does not end with `.json` (a profile is written as calibrations/NAME.json; write elsewhere with --out PATH)"
+            "`{name}` is not a device name: a name has no path separator, does not start with `.` and does not end with `.json` (a profile is written as NAME.json in the profile folder; write elsewhere with --out PATH)"
         ),
+        ProfileError::NoDataFolder => "no folder to write the profile to: no user data folder (the home folder is unknown) and $PIPEMEASURE_CALIBRATIONS is not set; give one, or write with --out PATH".into(),
         _ => return None,
     })
 }

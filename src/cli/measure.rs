@@ -26,7 +26,8 @@ use super::{Globals, values};
 pub struct Args {
     /// The dense cloud of the site (PLY, or E57), e.g. COLMAP's `dense/0/fused.ply`.
     pub cloud: Option<PathBuf>,
-    /// Device profile (a name in `calibrations/`, or a path to a profile JSON).
+    /// Device profile: a name (looked up in $PIPEMEASURE_CALIBRATIONS, ./calibrations/, the
+    /// user's data folder, then the presets built in) or a path to a profile JSON.
     #[arg(long)]
     device: Option<String>,
     /// The site's SfM model (COLMAP text or binary); default: `sparse` next to the cloud or up

@@ -58,7 +58,7 @@ pub struct Args {
     #[arg(long, default_value_t = ScanConfig::default().search_points, value_parser = at_least_1000)]
     search_points: usize,
     /// A site's photogrammetric cloud, scaled from its targets as the main command does: the
-    /// device profile (a name in `calibrations/` or a path). The cloud is re-triangulated at
+    /// device profile (a name or a path). The cloud is re-triangulated at
     /// the poses re-adjusted to the profile, brought into the TLS frame by the targets, and
     /// searched whole.
     #[arg(long)]

@@ -9,7 +9,7 @@ use pipemeasure::camera::convert::{
     ColmapModel, Converted, colmap_from_brown, opencv_from_brown, simplest_colmap_model,
 };
 use pipemeasure::io::colmap::{CameraId, camera_text_line};
-use pipemeasure::profile::{Profile, available_devices, load_device, resolve_device, search_dirs};
+use pipemeasure::profile::{Profile, list_profiles, load_located};
 
 /// `profile` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -22,7 +22,9 @@ pub enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// List the devices found in $PIPEMEASURE_CALIBRATIONS and ./calibrations/.
+    /// List every profile found — in $PIPEMEASURE_CALIBRATIONS, ./calibrations/, the user's
+    /// data folder and the presets built in — with its origin and file; a profile shadowed by
+    /// one of the same name found first is marked.
     List,
     /// Print the camera in another tool's form.
     Export {
@@ -48,11 +50,15 @@ pub enum Format {
 pub fn run(cmd: &Command) -> Result<()> {
     match cmd {
         Command::Show { device, json } => {
-            let (path, profile) = load_device(device)?;
+            let (located, profile) = load_located(device)?;
+            let path = located.path;
             if *json {
                 outln!("{}", profile.to_json());
             } else {
-                out!("{}", show(&profile, &path.display().to_string()));
+                out!(
+                    "{}",
+                    show(&profile, &format!("{}, {}", path.display(), located.origin))
+                );
             }
             let size = (profile.image.width, profile.image.height);
             let check = check_distortion(&profile.intrinsics, size);
@@ -68,17 +74,18 @@ pub fn run(cmd: &Command) -> Result<()> {
             }
         }
         Command::List => {
-            let devices = available_devices();
-            if devices.is_empty() {
-                let dirs: Vec<String> = search_dirs()
-                    .iter()
-                    .map(|d| d.display().to_string())
-                    .collect();
-                bail!("no device profiles found in {}", dirs.join(", "));
-            }
-            for d in devices {
-                let path = resolve_device(&d)?;
-                outln!("{d}\t{}", path.display());
+            // Always at least the presets built in.
+            for l in list_profiles() {
+                let shadowed = l
+                    .shadowed_by
+                    .map(|o| format!("\tshadowed by {o}"))
+                    .unwrap_or_default();
+                outln!(
+                    "{}\t{}\t{}{shadowed}",
+                    l.name,
+                    l.located.origin,
+                    l.located.path.display()
+                );
             }
         }
         Command::Export {
@@ -86,7 +93,7 @@ pub fn run(cmd: &Command) -> Result<()> {
             format,
             model,
         } => {
-            let (_, profile) = load_device(device)?;
+            let (_, profile) = load_located(device)?;
             let text = match format {
                 Format::Colmap => export_colmap(&profile, model.as_deref())?,
                 Format::Opencv => {

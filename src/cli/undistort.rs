@@ -18,8 +18,8 @@ use super::progress::bar;
 /// Arguments of `undistort`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Device profile: a name (looked up in $PIPEMEASURE_CALIBRATIONS, then ./calibrations/) or
-    /// a path to a profile file.
+    /// Device profile: a name (looked up in $PIPEMEASURE_CALIBRATIONS, ./calibrations/, the
+    /// user's data folder, then the presets built in) or a path to a profile file.
     #[arg(long)]
     device: String,
     /// Folder of frames (PNG, JPEG, TIFF, BMP).

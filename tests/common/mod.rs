@@ -27,7 +27,15 @@ pub fn render_distorted(
     ImageBuffer::from_raw(cam.width, cam.height, data).unwrap()
 }
 
-/// Runs the pipemeasure binary with `args` in `cwd`, returning (exit code, stdout, stderr).
+/// A user data folder no test writes to: [`pipemeasure`] points `XDG_DATA_HOME` at it, so no
+/// run sees the profiles of the user running the tests.
+pub fn no_user_data() -> std::path::PathBuf {
+    std::env::temp_dir().join("pipemeasure-tests-no-user-data")
+}
+
+/// Runs the pipemeasure binary with `args` in `cwd`, returning (exit code, stdout, stderr);
+/// `$PIPEMEASURE_CALIBRATIONS` unset and the user data folder [`no_user_data`] unless `env`
+/// sets them.
 pub fn pipemeasure(
     cwd: &std::path::Path,
     args: &[&str],
@@ -36,7 +44,8 @@ pub fn pipemeasure(
     let mut cmd = std::process::Command::new(env!("CARGO_BIN_EXE_pipemeasure"));
     cmd.current_dir(cwd)
         .args(args)
-        .env_remove("PIPEMEASURE_CALIBRATIONS");
+        .env_remove("PIPEMEASURE_CALIBRATIONS")
+        .env("XDG_DATA_HOME", no_user_data());
     for (k, v) in env {
         cmd.env(k, v);
     }

@@ -9,8 +9,9 @@ use super::super::values;
 /// Arguments of `calibrate`.
 #[derive(Clone, Debug, clap::Args)]
 pub struct Args {
-    /// Device name (a name, not a path): the profile is written as `calibrations/NAME.json`
-    /// unless `--out` says otherwise.
+    /// Device name (a name, not a path): the profile is written as `NAME.json` in the user's
+    /// data folder (`~/.local/share/pipemeasure/calibrations` on Linux), or in
+    /// $PIPEMEASURE_CALIBRATIONS when it is set, unless `--out` says otherwise.
     #[arg(long)]
     pub(super) device: String,
     /// Folder of the lab video's frames (image names in the SfM model are relative to it). With
@@ -45,7 +46,8 @@ pub struct Args {
     #[arg(long, value_name = "PX", default_value_t = ColmapOptions::default().max_image_size,
           value_parser = clap::value_parser!(u32).range(256..=16384))]
     pub(super) colmap_image_size: u32,
-    /// Where to write the profile (default `calibrations/DEVICE.json`).
+    /// Where to write the profile (default `DEVICE.json` in the user's data folder, or in
+    /// $PIPEMEASURE_CALIBRATIONS when it is set).
     #[arg(long)]
     pub(super) out: Option<PathBuf>,
     /// Replace an existing profile (the old one is kept as a numbered backup, `PATH.1.bak`,

@@ -13,7 +13,7 @@ use pipemeasure::io::atomic::check_writable_dir;
 use pipemeasure::io::colmap::{ColmapOptions, ColmapProgress, Reconstruction};
 use pipemeasure::io::tls::TlsTarget;
 use pipemeasure::io::tools::{Tool, probe};
-use pipemeasure::profile::{CALIBRATIONS_DIR, backup_path, validate_device_name};
+use pipemeasure::profile::{backup_path, default_profile_folder, validate_device_name};
 
 use super::super::{progress, usage};
 use super::{Args, RollingShutterMode};
@@ -148,10 +148,12 @@ pub(super) fn preflight(args: &Args) -> Result<(Option<Vec<TlsTarget>>, PathBuf)
             c.len()
         );
     }
-    let out = args
-        .out
-        .clone()
-        .unwrap_or_else(|| Path::new(CALIBRATIONS_DIR).join(format!("{}.json", args.device)));
+    let out = match &args.out {
+        Some(out) => out.clone(),
+        None => default_profile_folder()?
+            .path
+            .join(format!("{}.json", args.device)),
+    };
     if out.exists() && !args.force {
         bail!(
             "{} exists: pass --force to replace it (the old profile is kept as a numbered backup, \
@@ -161,7 +163,7 @@ pub(super) fn preflight(args: &Args) -> Result<(Option<Vec<TlsTarget>>, PathBuf)
         );
     }
     // Every destination before minutes of calibration: the profile's folder is created if
-    // missing (calibrations/), the report's and the network's too.
+    // missing (the user's data folder), the report's and the network's too.
     check_writable_dir(
         out.parent()
             .filter(|p| !p.as_os_str().is_empty())

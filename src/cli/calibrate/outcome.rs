@@ -96,6 +96,9 @@ pub(super) fn print_outcome(o: &Outcome<'_>) -> Result<()> {
         );
     }
     outln!("profile written to {}", o.out.display());
+    if o.args.out.is_none() {
+        shadow_note(&o.args.device, o.out);
+    }
     if let Some(b) = o.backup {
         outln!("the profile it replaces kept as {}", b.display());
     }
@@ -103,4 +106,26 @@ pub(super) fn print_outcome(o: &Outcome<'_>) -> Result<()> {
         outln!("report written to {}", dir.display());
     }
     Ok(())
+}
+
+/// Says so when `--device NAME` from this folder finds another profile before the one just
+/// written to the default folder (a `./calibrations/NAME.json` here, or
+/// `$PIPEMEASURE_CALIBRATIONS`'s).
+fn shadow_note(device: &str, written: &std::path::Path) {
+    let Ok(found) = pipemeasure::profile::find_device(device) else {
+        return;
+    };
+    let same = |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize())
+    {
+        (Ok(a), Ok(b)) => a == b,
+        _ => a == b,
+    };
+    if !same(&found.path, written) {
+        eprintln!(
+            "note: from this folder `--device {device}` finds {} ({}) first; the new profile is \
+             found from folders without one",
+            found.path.display(),
+            found.origin
+        );
+    }
 }

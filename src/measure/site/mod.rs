@@ -45,7 +45,7 @@ use uncertainty::pose_radius_std;
 pub struct SiteRequest {
     /// The dense cloud (PLY or E57).
     pub cloud: PathBuf,
-    /// Device profile (a name in `calibrations/` or a path).
+    /// Device profile: a name ([`crate::profile::find_device`]) or a path.
     pub device: Option<String>,
     /// The SfM model.
     pub sfm: Option<PathBuf>,

@@ -1,27 +1,34 @@
-//! Device profiles: `calibrations/NAME.json` (schema `pipemeasure.profile/1`, DESIGN.md
-//! "Conventions"), their validation, and the `--device` lookup.
-//!
-//! `--device` takes a profile name, looked up as `NAME.json` in `$PIPEMEASURE_CALIBRATIONS` and
-//! then in `./calibrations/`, or a path to a profile file.
+//! Device profiles: `NAME.json` (schema `pipemeasure.profile/1`, DESIGN.md "Conventions"),
+//! their validation, where they are found ([`lookup`]) and the profile of a calibration
+//! ([`calibrated`]).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::adjust::correlation;
-use crate::calibrate::Calibration;
 use crate::camera::{BrownCamera, Intrinsics, Term};
 use std::io::Write as _;
 
 use crate::io::atomic::StagedFile;
 use crate::io::error::{ReadError, ReadErrorKind, WriteError, open_error};
 
+pub mod calibrated;
+pub mod lookup;
+
+pub use calibrated::{CalibrationSource, HIGH_CORRELATION};
+pub use lookup::{
+    Listed, Located, Origin, PRESETS, ProfileFolder, available_devices, default_profile_folder,
+    devices_in, find_device, list_profiles, load_device, load_located, search_folders,
+    user_data_folder, validate_device_name,
+};
+
 /// The schema tag of this profile format.
 pub const PROFILE_SCHEMA: &str = "pipemeasure.profile/1";
-/// Environment variable naming a folder of profiles, searched before `./calibrations/`.
+/// Environment variable naming a folder of profiles, searched first.
 pub const CALIBRATIONS_ENV: &str = "PIPEMEASURE_CALIBRATIONS";
-/// The default profile folder, relative to the working directory.
+/// The name of a profile folder: `./calibrations/` in the working folder, and
+/// `pipemeasure/calibrations` in the user's data folder.
 pub const CALIBRATIONS_DIR: &str = "calibrations";
 /// The smallest pixel aspect fx / fy a profile may have (and the inverse the largest): real
 /// cameras are within a percent of 1.
@@ -163,9 +170,9 @@ pub struct ReadoutTime {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ProfileError {
-    /// No profile of that name in the search path.
+    /// No profile of that name in the search path nor among the presets.
     #[error(
-        "unknown device `{name}`: no {name}.json in {searched}; available devices: {available}"
+        "unknown device `{name}`: no {name}.json in {searched}, nor a preset built in; available devices: {available}"
     )]
     UnknownDevice {
         /// The name asked for.
@@ -196,9 +203,14 @@ pub enum ProfileError {
     Exists(PathBuf),
     /// A device name that is not a plain name.
     #[error(
-        "`{0}` is not a device name: a name has no path separator, does not start with `.` and does not end with `.json` (a profile is written as calibrations/NAME.json; give a path to write elsewhere)"
+        "`{0}` is not a device name: a name has no path separator, does not start with `.` and does not end with `.json` (a profile is written as NAME.json in the profile folder; give a path to write elsewhere)"
     )]
     NotAName(String),
+    /// Neither `$PIPEMEASURE_CALIBRATIONS` nor a user data folder is known to write a profile to.
+    #[error(
+        "no folder to write the profile to: no user data folder (the home folder is unknown) and $PIPEMEASURE_CALIBRATIONS is not set; give a path to write to"
+    )]
+    NoDataFolder,
 }
 
 impl Profile {
@@ -569,280 +581,6 @@ fn strip_position(message: &str) -> String {
     }
 }
 
-/// The folders searched for profiles by name, in order.
-#[must_use]
-pub fn search_dirs() -> Vec<PathBuf> {
-    let mut dirs = Vec::new();
-    if let Some(env) = std::env::var_os(CALIBRATIONS_ENV).filter(|v| !v.is_empty()) {
-        dirs.push(PathBuf::from(env));
-    }
-    dirs.push(PathBuf::from(CALIBRATIONS_DIR));
-    dirs
-}
-
-/// Device names in the folder `dir` (stems of its `*.json` files; a folder named `x.json` is
-/// no profile), sorted; none when it cannot be read.
-#[must_use]
-pub fn devices_in(dir: &Path) -> Vec<String> {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .filter_map(|e| {
-            let p = e.ok()?.path();
-            (p.extension()? == "json" && p.is_file())
-                .then(|| p.file_stem()?.to_str().map(str::to_string))?
-        })
-        .collect();
-    names.sort();
-    names
-}
-
-/// Device names available in the search folders ([`devices_in`] each), sorted, unique.
-#[must_use]
-pub fn available_devices() -> Vec<String> {
-    let mut names: Vec<String> = search_dirs().iter().flat_map(|d| devices_in(d)).collect();
-    names.sort();
-    names.dedup();
-    names
-}
-
-/// Whether `--device` names a file rather than a device.
-fn looks_like_path(spec: &str) -> bool {
-    spec.contains('/') || spec.contains(std::path::MAIN_SEPARATOR) || spec.ends_with(".json")
-}
-
-/// Checks that `name` is a device name, not a path: not empty, no path separator (`/`, `\`),
-/// no leading `.` (no `..`, no hidden file), no control character, not ending in `.json`. A
-/// profile is written as `calibrations/NAME.json`, so a name can never write outside it.
-///
-/// # Errors
-///
-/// [`ProfileError::NotAName`].
-pub fn validate_device_name(name: &str) -> Result<(), ProfileError> {
-    let ok = !name.trim().is_empty()
-        && !name.starts_with('.')
-        && !name.ends_with(".json")
-        && !name
-            .chars()
-            .any(|c| c == '/' || c == '\\' || c == std::path::MAIN_SEPARATOR || c.is_control());
-    if ok {
-        Ok(())
-    } else {
-        Err(ProfileError::NotAName(name.to_string()))
-    }
-}
-
-/// Resolves `--device` to a profile file.
-///
-/// # Errors
-///
-/// [`ProfileError::UnknownDevice`] listing the available devices, or a not-found read error for
-/// a path.
-pub fn resolve_device(spec: &str) -> Result<PathBuf, ProfileError> {
-    let file = |p: PathBuf| -> Result<Option<PathBuf>, ProfileError> {
-        if p.is_dir() {
-            return Err(ReadError::new(p, ReadErrorKind::IsDirectory).into());
-        }
-        Ok(p.is_file().then_some(p))
-    };
-    if looks_like_path(spec) {
-        let p = PathBuf::from(spec);
-        return file(p.clone())?.ok_or_else(|| ReadError::new(p, ReadErrorKind::NotFound).into());
-    }
-    let dirs = search_dirs();
-    for d in &dirs {
-        if let Some(p) = file(d.join(format!("{spec}.json")))? {
-            return Ok(p);
-        }
-    }
-    let available = available_devices();
-    Err(ProfileError::UnknownDevice {
-        name: spec.to_string(),
-        searched: dirs
-            .iter()
-            .map(|d| d.display().to_string())
-            .collect::<Vec<_>>()
-            .join(", "),
-        available: if available.is_empty() {
-            "none".into()
-        } else {
-            available.join(", ")
-        },
-    })
-}
-
-/// Resolves and reads `--device`.
-///
-/// # Errors
-///
-/// As [`resolve_device`] and [`Profile::read`].
-pub fn load_device(spec: &str) -> Result<(PathBuf, Profile), ProfileError> {
-    let path = resolve_device(spec)?;
-    let profile = Profile::read(&path)?;
-    Ok((path, profile))
-}
-
-/// Where a calibration came from, recorded in its profile's provenance.
-#[derive(Clone, Debug, Default)]
-pub struct CalibrationSource {
-    /// The command line that made it.
-    pub command: String,
-    /// The frames' folder.
-    pub frames: std::path::PathBuf,
-    /// The SfM model (its path, or how it was made).
-    pub sfm: String,
-    /// A note when the frames are simulated ([`crate::sim::truth::simulated_provenance`]).
-    pub simulated: Option<serde_json::Value>,
-}
-
-/// Correlations of two estimated terms above this magnitude are flagged: the two trade
-/// against each other and the frames do not tell them apart well (a common rule of thumb in
-/// self-calibration; the paper's term selection tests significance, not correlation).
-pub const HIGH_CORRELATION: f64 = 0.9;
-
-impl Profile {
-    /// The profile of a finished calibration: its estimated terms with their σ and
-    /// correlations, the fit's statistics, the readout time when it is the device's (estimated
-    /// or given; a nominal one held for frames without neighbours is left out), and the
-    /// provenance (`source`; the loop's iterations, convergence and jackknife check).
-    #[must_use]
-    pub fn from_calibration(
-        device: &str,
-        cal: &Calibration,
-        size: (u32, u32),
-        source: &CalibrationSource,
-    ) -> Profile {
-        let mut std_dev = StdDev::default();
-        for t in Term::ALL {
-            std_dev.set(t, cal.std_dev[t.index()]);
-        }
-        let idx: Vec<usize> = cal.terms.iter().map(|t| t.index()).collect();
-        let all = correlation(&cal.covariance);
-        let matrix = idx
-            .iter()
-            .map(|&i| idx.iter().map(|&j| all[(i, j)]).collect())
-            .collect();
-        let mut provenance = BTreeMap::new();
-        provenance.insert(
-            "tool".into(),
-            serde_json::json!(format!("pipemeasure {}", env!("CARGO_PKG_VERSION"))),
-        );
-        provenance.insert("source".into(), serde_json::json!("calibrate"));
-        provenance.insert("command".into(), serde_json::json!(source.command));
-        provenance.insert(
-            "frames".into(),
-            serde_json::json!(source.frames.display().to_string()),
-        );
-        provenance.insert("sfm".into(), serde_json::json!(source.sfm));
-        provenance.insert("iterations".into(), serde_json::json!(cal.iterations.len()));
-        provenance.insert("converged".into(), serde_json::json!(cal.converged()));
-        if let Some(j) = &cal.frame_jackknife {
-            // The σ above are the adjustment's times √variance_inflation (the frames' scatter).
-            provenance.insert("frame_jackknife".into(), serde_json::json!(j));
-        }
-        if let Some(r) = cal.rolling_shutter.as_ref().filter(|r| r.determined) {
-            // The highest order any frame's motion was adjusted to (fourth over a frame's
-            // video neighbours when the selection kept the snaps, first without neighbours).
-            let order = r
-                .motions
-                .iter()
-                .map(|m| m.order().number())
-                .max()
-                .unwrap_or(1);
-            provenance.insert("motion_order".into(), serde_json::json!(order));
-        }
-        if let Some(note) = &source.simulated {
-            provenance.insert("simulated".into(), note.clone());
-        }
-        Profile {
-            schema: PROFILE_SCHEMA.into(),
-            device: device.to_string(),
-            image: ImageSize {
-                width: size.0,
-                height: size.1,
-            },
-            model: "brown".into(),
-            terms: cal.terms.clone(),
-            intrinsics: cal.intrinsics,
-            std_dev,
-            correlation: Correlation {
-                names: cal.terms.clone(),
-                matrix,
-            },
-            residual_rms_px: Some(cal.residual_rms_px),
-            sigma0: Some(cal.sigma0),
-            images: cal.frame_names.len(),
-            targets: cal.points.len(),
-            observations: cal.observations.len(),
-            // A readout time held at the nominal value (frames without neighbours) is no property
-            // of the device: left out, so a measurement does not take it for one.
-            rolling_shutter: cal
-                .rolling_shutter
-                .as_ref()
-                .filter(|r| r.determined)
-                .map(|r| ReadoutTime {
-                    readout_s: r.readout_s,
-                    readout_std_s: r.readout_std_s,
-                    estimated: r.estimated,
-                }),
-            provenance,
-        }
-    }
-
-    /// The profile of a device's calibration ([`crate::calibrate::calibrate_device`]): as
-    /// [`Profile::from_calibration`], with the cross-validation recorded when it ran.
-    #[must_use]
-    pub fn from_device_calibration(
-        device: &str,
-        dc: &crate::calibrate::DeviceCalibration,
-        size: (u32, u32),
-        source: &CalibrationSource,
-    ) -> Profile {
-        let mut profile = Profile::from_calibration(device, &dc.calibration, size, source);
-        if let Some(cv) = &dc.cross_validation {
-            profile.record_cross_validation(cv);
-        }
-        profile
-    }
-
-    /// Records the cross-validation of the calibration (`calibrate --cross-validate`) in the
-    /// provenance: the halves' frames, how far their projections differ (RMS and worst, px,
-    /// after the rotation between them) and that against what their σ predict.
-    pub fn record_cross_validation(&mut self, cv: &crate::calibrate::CrossValidation) {
-        self.provenance.insert(
-            "cross_validation".into(),
-            serde_json::json!({
-                "frames": cv.frames,
-                "rms_px": cv.rotated_rms_px,
-                "max_px": cv.rotated_max_px,
-                "predicted_rms_px": cv.predicted_rms_px,
-                "ratio": cv.ratio,
-            }),
-        );
-    }
-
-    /// Pairs of estimated terms whose correlation exceeds [`HIGH_CORRELATION`] in magnitude:
-    /// `(first, second, r)` in the order of [`Profile::correlation`].
-    #[must_use]
-    pub fn high_correlations(&self) -> Vec<(String, String, f64)> {
-        let n = self.correlation.names.len();
-        let mut out = Vec::new();
-        for i in 0..n {
-            for j in 0..i {
-                let r = self.correlation.matrix[i][j];
-                if r.abs() > HIGH_CORRELATION {
-                    out.push((
-                        self.correlation.names[j].name().to_string(),
-                        self.correlation.names[i].name().to_string(),
-                        r,
-                    ));
-                }
-            }
-        }
-        out
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -997,49 +735,5 @@ mod tests {
         let mut v: serde_json::Value = serde_json::from_str(&sample().to_json()).unwrap();
         v["intrinsics"]["b1"] = 2.5.into();
         Profile::from_json(&v.to_string(), Path::new("p.json")).unwrap();
-    }
-
-    /// A profile path that is a directory gave "not found".
-    #[test]
-    fn a_directory_is_not_a_profile() {
-        let dir = tempfile::tempdir().unwrap();
-        let d = dir.path().join("dir.json");
-        std::fs::create_dir(&d).unwrap();
-        for e in [
-            Profile::read(&d).unwrap_err().to_string(),
-            resolve_device(&d.display().to_string())
-                .unwrap_err()
-                .to_string(),
-        ] {
-            assert!(
-                e.ends_with("dir.json: is a directory, expected a file"),
-                "{e}"
-            );
-        }
-    }
-
-    /// `calibrate --device ../../escaped` without `--out` wrote outside
-    /// `calibrations/`.
-    #[test]
-    fn device_names_are_names_not_paths() {
-        for bad in [
-            "../../escaped",
-            "a/b",
-            "a\\b",
-            "..",
-            ".hidden",
-            "",
-            " ",
-            "p30.json",
-            "x\ny",
-        ] {
-            assert!(
-                matches!(validate_device_name(bad), Err(ProfileError::NotAName(_))),
-                "{bad:?}"
-            );
-        }
-        for good in ["p30", "Pixel 7 Pro", "iphone11-4k.60fps", "pipe_cam"] {
-            validate_device_name(good).unwrap();
-        }
     }
 }
