@@ -43,12 +43,16 @@ fn main() {
     println!("cargo:rustc-env=PIPEMEASURE_BUILD_DATE={}", date(secs));
     println!("cargo:rerun-if-env-changed=SOURCE_DATE_EPOCH");
     // A new commit or checkout changes HEAD or the branch it names (paths as git resolves
-    // them, also in a worktree); outside a checkout nothing changes.
+    // them, also in a worktree); outside a checkout nothing changes. Only files that exist are
+    // watched: cargo takes a missing one for a changed one and would rebuild every time. A
+    // branch whose loose ref is missing lives in packed-refs.
     let mut watched = vec!["HEAD".to_string()];
     watched.extend(git(&["symbolic-ref", "-q", "HEAD"]));
     watched.push("packed-refs".into());
     for name in watched {
-        if let Some(path) = git(&["rev-parse", "--git-path", &name]) {
+        if let Some(path) = git(&["rev-parse", "--git-path", &name])
+            && std::path::Path::new(&path).exists()
+        {
             println!("cargo:rerun-if-changed={path}");
         }
     }
