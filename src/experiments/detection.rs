@@ -42,6 +42,10 @@ pub struct EvalResult {
     pub found: usize,
     /// Detections matching nothing.
     pub false_positives: usize,
+    /// Those detections, in frame order.
+    pub false_detections: Vec<crate::detect::DetectedEllipse>,
+    /// The detections of the targets found, matching `errors`.
+    pub found_detections: Vec<crate::detect::DetectedEllipse>,
     /// found / required.
     pub recall: f64,
     /// found / (found + false positives).
@@ -134,8 +138,10 @@ pub fn evaluate(config: &EvalConfig) -> Result<EvalResult, String> {
                 r.found += 1;
                 r.errors.push((e.centre() - t.fitted.centre()).norm());
                 r.semi_minor.push(t.fitted.b);
+                r.found_detections.push(d.clone());
             } else if !truth_any.targets.iter().any(|t| matches(&e, &t.fitted)) {
                 r.false_positives += 1;
+                r.false_detections.push(d.clone());
             }
         }
     }
