@@ -169,13 +169,7 @@ fn conic_on_plane(
     anchor: &Point3<f64>,
 ) -> (nalgebra::Matrix4x3<f64>, Matrix3<f64>) {
     let n = Vector3::new(plane.x, plane.y, plane.z);
-    let helper = if n.z.abs() < 0.9 {
-        Vector3::z()
-    } else {
-        Vector3::x()
-    };
-    let u = helper.cross(&n).normalize();
-    let v = n.cross(&u);
+    let (u, v) = super::plane_basis(&n);
     // Project the anchor onto the plane.
     let x0 = anchor.coords - n * (n.dot(&anchor.coords) + plane.w);
     let mut M = nalgebra::Matrix4x3::zeros();
@@ -474,13 +468,7 @@ mod tests {
     /// The image conic of the ellipse `(s/a)² + (t/b)² = 1` in the plane through `centre` with
     /// `normal`, axes along an orthonormal basis of the plane.
     fn conic_of_planar_ellipse(s: &Setup, view: usize, semi_axes: (f64, f64)) -> Matrix3<f64> {
-        let helper = if s.normal.z.abs() < 0.9 {
-            Vector3::z()
-        } else {
-            Vector3::x()
-        };
-        let u = helper.cross(&s.normal).normalize();
-        let v = s.normal.cross(&u);
+        let (u, v) = crate::geometry::plane_basis(&s.normal);
         let m = nalgebra::Matrix4x3::from_columns(&[u.push(0.0), v.push(0.0), s.centre.push(1.0)]);
         let h = camera_matrix(&s.k, &s.poses[view]) * m;
         let on_plane = Matrix3::from_diagonal(&Vector3::new(

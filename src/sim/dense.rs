@@ -176,15 +176,7 @@ pub fn site_samples(
         // The caps' outer faces: rings of the pipe spacing (their rims are the pipe's ends).
         labels.push(format!("{}_cap", c.name));
         let cap_label = (labels.len() - 1) as u8;
-        let (e1, e2) = {
-            let helper = if dir.z.abs() < 0.9 {
-                Vector3::z()
-            } else {
-                Vector3::x()
-            };
-            let e1 = helper.cross(&dir).normalize();
-            (e1, dir.cross(&e1))
-        };
+        let (e1, e2) = crate::geometry::plane_basis(&dir);
         for (centre, normal) in [(start, -dir), (start + dir * length, dir)] {
             let rings = (radius / pipe_spacing).ceil() as usize;
             for i in 0..rings {

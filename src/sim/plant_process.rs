@@ -57,13 +57,9 @@ impl Builder {
     fn add_reducer(&mut self, a: [f64; 3], b: [f64; 3], big: PipeSize, small: PipeSize) {
         let (pa, pb) = (Vector3::from(a), Vector3::from(b));
         let d = (pb - pa).normalize();
-        let helper = if d.z.abs() < 0.9 {
-            Vector3::z()
-        } else {
-            Vector3::x()
-        };
-        let u = d.cross(&helper).normalize();
-        let w = d.cross(&u);
+        // The rim's frame turned by half a turn from the plane's basis (as first written).
+        let (u, w) = crate::geometry::plane_basis(&d);
+        let (u, w) = (-u, -w);
         let mut rim = Vec::with_capacity(2 * REDUCER_RIM_POINTS);
         for (centre, r) in [(pa, big.radius()), (pb, small.radius())] {
             for k in 0..REDUCER_RIM_POINTS {

@@ -202,12 +202,7 @@ impl Cylinder {
         texture: Texture,
     ) -> Self {
         let dir = dir.normalize();
-        let helper = if dir.z.abs() < 0.9 {
-            Vector3::z()
-        } else {
-            Vector3::x()
-        };
-        let ref_dir = helper.cross(&dir).normalize();
+        let ref_dir = crate::geometry::plane_basis(&dir).0;
         Cylinder {
             name: name.into(),
             start,

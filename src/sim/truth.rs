@@ -419,13 +419,7 @@ impl Truth {
 
 /// Unit vectors spanning the target's plane.
 fn plane_axes(normal: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
-    let helper = if normal.z.abs() < 0.9 {
-        Vector3::z()
-    } else {
-        Vector3::x()
-    };
-    let u = helper.cross(normal).normalize();
-    (u, normal.cross(&u))
+    crate::geometry::plane_basis(normal)
 }
 
 /// The calibration matrix of the undistorted pinhole image
