@@ -9,7 +9,7 @@ use pipemeasure::camera::convert::{
     ColmapModel, Converted, colmap_from_brown, opencv_from_brown, simplest_colmap_model,
 };
 use pipemeasure::io::colmap::{CameraId, camera_text_line};
-use pipemeasure::profile::{Profile, list_profiles, load_located};
+use pipemeasure::profile::{HIGH_CORRELATION, Profile, list_profiles, load_located};
 
 /// `profile` subcommands.
 #[derive(Debug, clap::Subcommand)]
@@ -168,20 +168,18 @@ fn show(p: &Profile, path: &str) -> String {
     if !stats.is_empty() {
         let _ = writeln!(s, "\n{}", stats.join(", "));
     }
-    let c = &p.correlation;
-    let mut high = Vec::new();
-    for i in 0..c.names.len() {
-        for j in i + 1..c.names.len() {
-            let r = c.matrix[i][j];
-            if r.abs() > 0.9 {
-                high.push(format!("{}–{} {r:+.3}", c.names[i], c.names[j]));
-            }
-        }
-    }
-    if !c.names.is_empty() {
+    // Row by row of the correlation matrix, as the profile lists its terms.
+    let pos = |n: &str| p.correlation.names.iter().position(|t| t.name() == n);
+    let mut pairs = p.high_correlations();
+    pairs.sort_by_key(|(a, b, _)| (pos(a), pos(b)));
+    let high: Vec<String> = pairs
+        .iter()
+        .map(|(a, b, r)| format!("{a}–{b} {r:+.3}"))
+        .collect();
+    if !p.correlation.names.is_empty() {
         let _ = writeln!(
             s,
-            "correlations above 0.9: {}",
+            "correlations above {HIGH_CORRELATION}: {}",
             if high.is_empty() {
                 "none".into()
             } else {
@@ -214,9 +212,7 @@ fn rolling_shutter_line(p: &Profile) -> String {
         return "rolling shutter  not modelled (no readout time: measured as a global shutter unless --readout-time is given)".into();
     };
     let order = p
-        .provenance
-        .get("motion_order")
-        .and_then(serde_json::Value::as_u64)
+        .motion_order()
         .map_or_else(String::new, |o| format!("; frames' motions of order {o}"));
     if r.estimated {
         format!(
@@ -236,21 +232,19 @@ fn rolling_shutter_line(p: &Profile) -> String {
 /// and the cross-validation of two halves.
 fn checks_lines(p: &Profile) -> Vec<String> {
     let mut out = Vec::new();
-    let number = |v: &serde_json::Value, k: &str| v.get(k).and_then(serde_json::Value::as_f64);
-    if let Some(j) = p.provenance.get("frame_jackknife") {
-        if let (Some(f), Some(g)) = (number(j, "variance_inflation"), number(j, "groups")) {
-            out.push(format!(
-                "jackknife over {g:.0} groups of frames: covariance × {f:.3} (σ × {:.3})",
-                f.sqrt()
-            ));
-        }
+    if let Some(j) = p.jackknife() {
+        out.push(format!(
+            "jackknife over {:.0} groups of frames: covariance × {:.3} (σ × {:.3})",
+            j.groups,
+            j.variance_inflation,
+            j.variance_inflation.sqrt()
+        ));
     }
-    if let Some(c) = p.provenance.get("cross_validation") {
-        if let (Some(rms), Some(ratio)) = (number(c, "rms_px"), number(c, "ratio")) {
-            out.push(format!(
-                "cross-validation: the halves' projections {rms:.4} px RMS apart, {ratio:.2} × what their σ predict"
-            ));
-        }
+    if let Some(c) = p.cross_validation() {
+        out.push(format!(
+            "cross-validation: the halves' projections {:.4} px RMS apart, {:.2} × what their σ predict",
+            c.rms_px, c.ratio
+        ));
     }
     out
 }
