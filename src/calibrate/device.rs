@@ -66,8 +66,6 @@ pub struct DeviceCalibration {
     pub projection_uncertainty: ImageMap,
     /// The halves compared, when asked.
     pub cross_validation: Option<CrossValidation>,
-    /// The calibration's warnings, then the checks'.
-    pub warnings: Vec<String>,
 }
 
 /// Calibrates a device from an SfM model and the detections in its frames, and checks the
@@ -84,9 +82,9 @@ pub fn calibrate_device(
     let size = input.image_size;
     let mut cal = calibrate(input, &config.calibrate, log)?;
     let distortion_check = check_distortion(&cal.intrinsics, size);
-    let mut warnings = cal.warnings.clone();
+    // The checks' warnings follow the loop's in `cal.warnings`.
     if !distortion_check.ok {
-        warnings.push(format!(
+        cal.warnings.push(format!(
             "the distortion is not monotonic and invertible over the whole frame: it fails at {} \
              of the checked pixels, from {:.0} px from the principal point (the frame reaches \
              {:.0} px); do not use the profile near the image border",
@@ -108,7 +106,7 @@ pub fn calibrate_device(
             *s *= k;
         }
         cal.covariance *= k * k;
-        warnings.push(format!(
+        cal.warnings.push(format!(
             "cross-validation: the halves' projections differ by {:.3} px RMS after the rotation between them, {k:.2} times what their σ predict ({:.3} px); the profile's σ are multiplied by {k:.2}",
             cv.rotated_rms_px, cv.predicted_rms_px
         ));
@@ -119,7 +117,6 @@ pub fn calibrate_device(
         distortion_check,
         projection_uncertainty,
         cross_validation,
-        warnings,
     })
 }
 

@@ -100,7 +100,7 @@ impl<'a> CalibrationReport<'a> {
             projection_uncertainty: &dc.projection_uncertainty,
             cross_validation: dc.cross_validation.as_ref(),
             high_correlations: profile.high_correlations(),
-            warnings: &dc.warnings,
+            warnings: &dc.calibration.warnings,
             observations: &cal.observations,
             network,
             check_points,

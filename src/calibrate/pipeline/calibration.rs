@@ -153,7 +153,9 @@ pub struct Calibration {
     pub feature_adjustment: Option<AdjustSummary>,
     /// The final adjustment's solver summary.
     pub summary: AdjustSummary,
-    /// Warnings for the user (weak geometry, unconverged loop).
+    /// Warnings for the user (weak geometry, unconverged loop; after
+    /// [`crate::calibrate::calibrate_device`], its checks' too: a distortion that folds back,
+    /// halves that disagree).
     pub warnings: Vec<String>,
     /// The SfM camera the loop started from.
     pub initial: Intrinsics,

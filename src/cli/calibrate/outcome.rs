@@ -57,7 +57,7 @@ pub(super) fn print_outcome(o: &Outcome<'_>) -> Result<()> {
             cv.predicted_rms_px
         );
     }
-    for w in &o.device.warnings {
+    for w in &o.device.calibration.warnings {
         outln!("WARNING: {w}");
     }
     if let Some(c) = o.check_report {
