@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use std::collections::HashMap;
 
-use crate::geometry::quan::{conic_centre_on_plane, conic_plane, roundness_on_plane};
+use crate::geometry::quan::{ConicOnPlane, conic_plane};
 use crate::geometry::triangulation::{Observation, triangulate_dlt};
 
 /// Options of Algorithm 3.
@@ -76,7 +76,7 @@ pub struct Correction {
     /// Convergence angle of the pair at the target (degrees).
     pub convergence_deg: f64,
     /// Minor/major axis ratio of the conic this view's cone cuts from the plane
-    /// ([`roundness_on_plane`]): about 1 for a circular target, the shape's own ratio for
+    /// ([`ConicOnPlane::roundness`]): about 1 for a circular target, the shape's own ratio for
     /// anything else. `None` with a fallback partner (converging by less than
     /// [`EccentricityConfig::min_convergence_deg`]), whose plane is too loosely tilted to judge.
     pub roundness: Option<f64>,
@@ -215,7 +215,9 @@ pub fn correct_target(
                 })
                 .as_ref()?;
             let p_k = if k == key.0 { cams.0 } else { cams.2 };
-            let (_, centre) = conic_centre_on_plane(&p_k, &views[k].conic, plane, anchor)?;
+            // The in-plane conic, built once for the centre and the roundness.
+            let cut = ConicOnPlane::new(&p_k, &views[k].conic, plane, anchor);
+            let (_, centre) = cut.centre()?;
             let allowed = config.max_correction_ratio * views[k].bound + 0.5;
             ((centre - views[k].centre).norm() <= allowed).then_some(Correction {
                 centre,
@@ -224,7 +226,7 @@ pub fn correct_target(
                 convergence_deg,
                 // A fallback partner's narrow pair leaves the plane's tilt loose.
                 roundness: (convergence_deg > config.min_convergence_deg)
-                    .then(|| roundness_on_plane(&p_k, &views[k].conic, plane, anchor))
+                    .then(|| cut.roundness())
                     .flatten(),
             })
         })

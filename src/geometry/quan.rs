@@ -181,11 +181,74 @@ fn conic_on_plane(
     (M, M.transpose() * A * M)
 }
 
-/// The 3D centre of the conic cut from the cone of view `(P, C)` by `plane` (paper Algorithm 3
-/// step 4b, eqs. 3–5, in the frame-free form of math §3.4): the plane is parametrised
-/// `X = M·w` with an orthonormal basis and a point `anchor` on it; the in-plane conic is
-/// `Mᵀ A M` and its centre the pole of the plane's line at infinity. Returns the 3D centre
-/// and its projection through `P`.
+/// The conic cut from the cone of view `(P, C)` by `plane`, in the plane (paper Algorithm 3
+/// step 4b, math §3.4): the plane is parametrised `X = M·w` with an orthonormal basis and a
+/// point `anchor` on it, and the in-plane conic is `Mᵀ A M` for the cone `A = Pᵀ C P`. Built
+/// once, it gives the circle's centre ([`ConicOnPlane::centre`]) and its roundness
+/// ([`ConicOnPlane::roundness`]).
+#[allow(non_snake_case)]
+#[derive(Clone, Copy, Debug)]
+pub struct ConicOnPlane {
+    P: Matrix3x4<f64>,
+    M: nalgebra::Matrix4x3<f64>,
+    conic: Matrix3<f64>,
+}
+
+impl ConicOnPlane {
+    /// The cut of view `(P, C)`'s cone by `plane` through (the projection of) `anchor`.
+    #[allow(non_snake_case)]
+    #[must_use]
+    pub fn new(
+        P: &Matrix3x4<f64>,
+        C: &Matrix3<f64>,
+        plane: &Vector4<f64>,
+        anchor: &Point3<f64>,
+    ) -> Self {
+        let (M, conic) = conic_on_plane(P, C, plane, anchor);
+        ConicOnPlane { P: *P, M, conic }
+    }
+
+    /// The 3D centre of the conic (eqs. 3–5: the pole of the plane's line at infinity) and its
+    /// projection through `P`.
+    #[allow(non_snake_case)]
+    #[must_use]
+    pub fn centre(&self) -> Option<(Point3<f64>, Vector2<f64>)> {
+        let Cpi = &self.conic;
+        // Centre: adj(C_π)·(0, 0, 1)ᵀ (eq. 5 as cofactors).
+        let (a, h, g) = (Cpi[(0, 0)], Cpi[(0, 1)], Cpi[(0, 2)]);
+        let (b, f) = (Cpi[(1, 1)], Cpi[(1, 2)]);
+        let w = Vector3::new(h * f - b * g, g * h - a * f, a * b - h * h);
+        if w.z.abs() < 1e-300 {
+            return None;
+        }
+        let w = w / w.z;
+        let X = self.M * w;
+        let X = Point3::new(X.x, X.y, X.z);
+        let x = self.P * Vector4::new(X.x, X.y, X.z, 1.0);
+        if x.z.abs() < 1e-300 {
+            return None;
+        }
+        Some((X, Vector2::new(x.x / x.z, x.y / x.z)))
+    }
+
+    /// Its minor/major axis ratio in the plane, `sqrt(λ_min / λ_max)` of the quadratic part. 1
+    /// for the image of a circle cut by the circle's own plane; a shape that is not a circle —
+    /// a blot of paint an ellipse fits in the image — keeps its own ratio in every view.
+    /// `None` when the cut is not an ellipse (the plane misses the cone's nappe or is parallel
+    /// to a generator).
+    #[must_use]
+    pub fn roundness(&self) -> Option<f64> {
+        let c = &self.conic;
+        let q = nalgebra::Matrix2::new(c[(0, 0)], c[(0, 1)], c[(1, 0)], c[(1, 1)]);
+        let e = q.symmetric_eigen().eigenvalues;
+        let (lo, hi) = (e[0].abs().min(e[1].abs()), e[0].abs().max(e[1].abs()));
+        // Both eigenvalues of one sign: an ellipse; the axes go as 1/sqrt(λ).
+        (e[0] * e[1] > 0.0 && hi > 0.0 && hi.is_finite()).then(|| (lo / hi).sqrt())
+    }
+}
+
+/// The 3D centre of the conic cut from the cone of view `(P, C)` by `plane`
+/// ([`ConicOnPlane::centre`]) and its projection through `P`.
 #[allow(non_snake_case)]
 #[must_use]
 pub fn conic_centre_on_plane(
@@ -194,29 +257,11 @@ pub fn conic_centre_on_plane(
     plane: &Vector4<f64>,
     anchor: &Point3<f64>,
 ) -> Option<(Point3<f64>, Vector2<f64>)> {
-    let (M, Cpi) = conic_on_plane(P, C, plane, anchor);
-    // Centre: adj(C_π)·(0, 0, 1)ᵀ (eq. 5 as cofactors).
-    let (a, h, g) = (Cpi[(0, 0)], Cpi[(0, 1)], Cpi[(0, 2)]);
-    let (b, f) = (Cpi[(1, 1)], Cpi[(1, 2)]);
-    let w = Vector3::new(h * f - b * g, g * h - a * f, a * b - h * h);
-    if w.z.abs() < 1e-300 {
-        return None;
-    }
-    let w = w / w.z;
-    let X = M * w;
-    let X = Point3::new(X.x, X.y, X.z);
-    let x = P * Vector4::new(X.x, X.y, X.z, 1.0);
-    if x.z.abs() < 1e-300 {
-        return None;
-    }
-    Some((X, Vector2::new(x.x / x.z, x.y / x.z)))
+    ConicOnPlane::new(P, C, plane, anchor).centre()
 }
 
-/// Roundness of the conic cut from the cone of view `(P, C)` by `plane`: its minor/major axis
-/// ratio in the plane, `sqrt(λ_min / λ_max)` of the in-plane conic's quadratic part. 1 for the
-/// image of a circle cut by the circle's own plane; a shape that is not a circle — a blot of
-/// paint an ellipse fits in the image — keeps its own ratio in every view. `None` when the cut
-/// is not an ellipse (the plane misses the cone's nappe or is parallel to a generator).
+/// Roundness of the conic cut from the cone of view `(P, C)` by `plane`
+/// ([`ConicOnPlane::roundness`]).
 #[allow(non_snake_case)]
 #[must_use]
 pub fn roundness_on_plane(
@@ -225,12 +270,7 @@ pub fn roundness_on_plane(
     plane: &Vector4<f64>,
     anchor: &Point3<f64>,
 ) -> Option<f64> {
-    let (_, Cpi) = conic_on_plane(P, C, plane, anchor);
-    let q = nalgebra::Matrix2::new(Cpi[(0, 0)], Cpi[(0, 1)], Cpi[(1, 0)], Cpi[(1, 1)]);
-    let e = q.symmetric_eigen().eigenvalues;
-    let (lo, hi) = (e[0].abs().min(e[1].abs()), e[0].abs().max(e[1].abs()));
-    // Both eigenvalues of one sign: an ellipse; the axes go as 1/sqrt(λ).
-    (e[0] * e[1] > 0.0 && hi > 0.0 && hi.is_finite()).then(|| (lo / hi).sqrt())
+    ConicOnPlane::new(P, C, plane, anchor).roundness()
 }
 
 /// The image of the circle's centre as the pole of the plane's vanishing line with respect to
