@@ -318,8 +318,17 @@ fn profile_list_and_show_with_a_folder_named_json() {
     let env = [("PIPEMEASURE_CALIBRATIONS", cal.to_str().unwrap())];
     let (code, stdout, stderr) = pipemeasure(dir.path(), &["profile", "list"], &env);
     assert_eq!(code, 0, "{stderr}");
-    assert_eq!(stdout.lines().count(), 1, "{stdout}");
-    assert!(stdout.starts_with("small\t"), "{stdout}");
+    // The one profile of the folder, and the presets built in; the folder named dir.json is
+    // no profile.
+    let names: Vec<&str> = stdout.lines().map(|l| l.split('\t').next().unwrap()).collect();
+    assert_eq!(names, ["iphone11", "p30", "s10", "small"], "{stdout}");
+    assert!(
+        stdout.contains(&format!(
+            "small\t$PIPEMEASURE_CALIBRATIONS\t{}",
+            cal.join("small.json").display()
+        )),
+        "{stdout}"
+    );
     for device in ["dir", "cal/dir.json"] {
         let (code, _, stderr) = pipemeasure(dir.path(), &["profile", "show", device], &env);
         assert_eq!(code, 1, "{stderr}");
