@@ -320,7 +320,10 @@ fn profile_list_and_show_with_a_folder_named_json() {
     assert_eq!(code, 0, "{stderr}");
     // The one profile of the folder, and the presets built in; the folder named dir.json is
     // no profile.
-    let names: Vec<&str> = stdout.lines().map(|l| l.split('\t').next().unwrap()).collect();
+    let names: Vec<&str> = stdout
+        .lines()
+        .map(|l| l.split('\t').next().unwrap())
+        .collect();
     assert_eq!(names, ["iphone11", "p30", "s10", "small"], "{stdout}");
     assert!(
         stdout.contains(&format!(
