@@ -298,11 +298,9 @@ pub fn find_device(spec: &str) -> Result<Located, ProfileError> {
 pub fn load_located(spec: &str) -> Result<(Located, Profile), ProfileError> {
     let located = find_device(spec)?;
     let profile = match located.origin {
+        // Parsed and validated as a file would be.
         Origin::BuiltIn => {
-            let text = preset_text(spec).unwrap_or_default();
-            let profile = Profile::from_json(text, &located.path)?;
-            profile.validate(&located.path)?;
-            profile
+            Profile::from_json(preset_text(spec).unwrap_or_default(), &located.path)?
         }
         _ => Profile::read(&located.path)?,
     };
@@ -370,8 +368,8 @@ mod tests {
     fn the_built_in_presets_are_valid_profiles_of_their_names() {
         for (name, text) in PRESETS {
             let label = preset_label(name);
+            // from_json validates every value.
             let p = Profile::from_json(text, &label).unwrap();
-            p.validate(&label).unwrap();
             assert_eq!(p.device, name);
         }
     }
