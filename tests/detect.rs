@@ -93,9 +93,10 @@ fn defocused_lab_targets_are_found() {
 
 /// A lab whose walls are sprayed with blobs of the targets' sizes, dark and light, lumpy and
 /// mottled (`LabConfig::wall_texture` speckled; unlike the plaster every other simulated lab
-/// has): every target is still found, with the centre accuracy of a plain wall. (Blobs of
-/// 2–4 px that blur into ellipses are found too: no test on a disc's own pixels tells them
-/// from a target that small; README "Target detection".)
+/// has): every target is still found, with the centre accuracy of a plain wall. (Blobs whose
+/// levels are as far apart as ink and paper, most of 2–4 px that blur into ellipses, are found
+/// too: no test on a disc's own pixels tells them from a target that small; docs/reference.md,
+/// "What it cannot tell apart".)
 #[test]
 fn speckled_walls_hide_no_target() {
     let cfg = EvalConfig {
@@ -128,8 +129,21 @@ fn speckled_walls_hide_no_target() {
 }
 
 fn disc_frame(w: u32, h: u32, cx: f64, cy: f64, r: f64) -> ImageBuffer<Luma<u8>, Vec<u8>> {
+    disc_frame_levels(w, h, cx, cy, r, 30, 210)
+}
+
+/// A disc of grey level `inside` on `outside`, its edge pixels area-weighted (4 × 4 samples).
+fn disc_frame_levels(
+    w: u32,
+    h: u32,
+    cx: f64,
+    cy: f64,
+    r: f64,
+    inside: i32,
+    outside: i32,
+) -> ImageBuffer<Luma<u8>, Vec<u8>> {
     ImageBuffer::from_fn(w, h, |x, y| {
-        let mut inside = 0;
+        let mut covered = 0;
         for sy in 0..4 {
             for sx in 0..4 {
                 let (u, v) = (
@@ -137,12 +151,45 @@ fn disc_frame(w: u32, h: u32, cx: f64, cy: f64, r: f64) -> ImageBuffer<Luma<u8>,
                     f64::from(y) + (f64::from(sy) + 0.5) / 4.0,
                 );
                 if (u - cx).powi(2) + (v - cy).powi(2) <= r * r {
-                    inside += 1;
+                    covered += 1;
                 }
             }
         }
-        Luma([(210 - inside * 180 / 16) as u8])
+        Luma([(outside + (inside - outside) * covered / 16) as u8])
     })
+}
+
+/// A target is ink on paper: its two grey levels lie several-fold apart. A disc of the same
+/// shape, size and contrast whose levels are closer — a blotch of paint, a stain on a wall — is
+/// no target, in either polarity; the same disc printed is found.
+#[test]
+fn a_disc_whose_levels_are_not_ink_on_paper_is_no_target() {
+    let config = DetectConfig::default();
+    // (inside, outside, a target?): contrast 140 or 80 either way; level ratios 0.3 and 0.6.
+    for (inside, outside, target) in [
+        (60, 200, true),
+        (200, 60, true),
+        (120, 200, false),
+        (200, 120, false),
+    ] {
+        let frame = disc_frame_levels(160, 120, 70.2, 55.6, 12.0, inside, outside);
+        let found = detect_in_frame(&DynamicImage::ImageLuma8(frame), &config)
+            .unwrap()
+            .ellipses;
+        assert_eq!(
+            found.len(),
+            usize::from(target),
+            "disc {inside} on {outside}: {found:?}"
+        );
+        if target {
+            let e = &found[0];
+            assert!((e.cx - 70.2).hypot(e.cy - 55.6) < 0.05, "{e:?}");
+            assert!(
+                (e.a - 12.0).abs() < 0.1 && (e.b - 12.0).abs() < 0.1,
+                "{e:?}"
+            );
+        }
+    }
 }
 
 #[test]

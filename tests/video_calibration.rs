@@ -206,8 +206,8 @@ fn video_frames_without_neighbours_calibrate_with_a_nominal_readout() {
 /// still frames, 30 of 1920 px, seed 1): the detector takes many blobs for targets and `match`
 /// tracks some of them (flat, nearly elliptical marks on the wall). Tracks not round in their
 /// plane (Algorithm 3's cut) are dropped, and the camera comes within 0.2 px of the truth and
-/// within 3 × its reported σ (0.147 px, 2.10 σ when written; 0.245 px, 2.85 σ keeping every
-/// track; the same lab with plaster walls: 0.104 px, 2.87 σ).
+/// within 3 × its reported σ (0.108 px, 1.92 σ when written; the same lab with plaster walls:
+/// 0.104 px, 2.87 σ).
 #[test]
 fn a_lab_with_speckled_walls_still_calibrates_to_the_true_camera() {
     let dir = tempfile::tempdir().unwrap();
