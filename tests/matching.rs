@@ -140,7 +140,7 @@ fn tracks_not_round_in_their_plane_are_dropped() {
         .iter()
         .map(|t| (t.id, t.clone()))
         .collect();
-    let is_blot = |id: u32| id % 4 == 0;
+    let is_blot = |id: u32| id.is_multiple_of(4);
     for frame in 0..prepared.observations.len() {
         for k in 0..prepared.observations[frame].len() {
             let id = prepared.ids[frame][k].0;

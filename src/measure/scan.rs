@@ -186,7 +186,7 @@ impl Decimator {
     }
 
     fn push(&mut self, p: Vector3<f64>) {
-        if splitmix64(self.seen as u64) % self.stride as u64 == 0 {
+        if splitmix64(self.seen as u64).is_multiple_of(self.stride as u64) {
             self.points.push(p);
             if self.points.len() > self.budget {
                 // More than declared: every second point kept so far goes, and the stride
@@ -255,7 +255,7 @@ impl Band {
                 continue;
             }
             self.count += 1;
-            if self.count % self.stride != 0 {
+            if !self.count.is_multiple_of(self.stride) {
                 continue;
             }
             self.points.push(p.coords);

@@ -252,7 +252,7 @@ pub fn build_scene(config: &LabConfig, texel_m: f64, seed: u64) -> Scene {
                 let free_b = (db - 2.0 * plate_half).max(0.0) / 4.0;
                 let a = margin + (c as f64 + 0.5) * da + rng.random_range(-1.0..=1.0) * free_a;
                 let b = margin + (r as f64 + 0.5) * db + rng.random_range(-1.0..=1.0) * free_b;
-                let polarity = if (k + r) % 2 == 0 {
+                let polarity = if (k + r).is_multiple_of(2) {
                     Polarity::BlackOnWhite
                 } else {
                     Polarity::WhiteOnBlack

@@ -203,7 +203,7 @@ pub(super) fn read_images(path: &Path, bytes: &[u8]) -> Result<ImagesRead, ReadE
         };
         let cur = Cursor { path, line: k2 + 1 };
         let fields: Vec<&str> = points_line.split_whitespace().collect();
-        if fields.len() % 3 != 0 {
+        if !fields.len().is_multiple_of(3) {
             return Err(cur.err(ReadErrorKind::FieldCount {
                 expected: "a multiple of 3 (X, Y, POINT3D_ID)".into(),
                 found: fields.len(),
@@ -282,7 +282,7 @@ fn read_points(path: &Path, bytes: &[u8]) -> Result<PointsRead, ReadError> {
         }
         let error = cur.parse_f64(f.next(), "ERROR")?;
         let rest: Vec<&str> = f.collect();
-        if rest.len() % 2 != 0 {
+        if !rest.len().is_multiple_of(2) {
             return Err(cur.err(ReadErrorKind::FieldCount {
                 expected: "pairs (IMAGE_ID, POINT2D_IDX) after ERROR".into(),
                 found: rest.len(),

@@ -174,10 +174,13 @@ fn straight_up_to(pts: &[EndPoint], face: f64) -> bool {
     let bins = (face / 0.01).ceil().max(0.0) as usize;
     let mut seen = vec![false; bins];
     for p in pts {
-        if p.axial >= 0.0 && p.axial < face && p.off_surface.abs() <= 0.005 && p.along_axis <= 0.5 {
-            if let Some(b) = seen.get_mut((p.axial / 0.01) as usize) {
-                *b = true;
-            }
+        if p.axial >= 0.0
+            && p.axial < face
+            && p.off_surface.abs() <= 0.005
+            && p.along_axis <= 0.5
+            && let Some(b) = seen.get_mut((p.axial / 0.01) as usize)
+        {
+            *b = true;
         }
     }
     seen.iter().filter(|&&b| b).count() * 5 >= seen.len() * 4
