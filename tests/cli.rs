@@ -1004,6 +1004,32 @@ fn version_names_the_commit_and_the_build_date() {
     );
 }
 
+/// `man DIR` writes every page or none: with a folder where one page would go, it fails
+/// naming that page, and no page (nor a temporary) is left in DIR.
+#[test]
+fn man_writes_every_page_or_none() {
+    let dir = tempfile::tempdir().unwrap();
+    let pages = dir.path().join("pages");
+    std::fs::create_dir_all(pages.join("pipemeasure-pipes.1")).unwrap();
+    let (code, _, stderr) = pipemeasure(dir.path(), &["man", "pages"], &[]);
+    assert_ne!(code, 0, "{stderr}");
+    assert!(stderr.contains("pipemeasure-pipes.1"), "{stderr}");
+    let left: Vec<String> = std::fs::read_dir(&pages)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(left, vec!["pipemeasure-pipes.1".to_string()], "{left:?}");
+    std::fs::remove_dir(pages.join("pipemeasure-pipes.1")).unwrap();
+    let (code, stdout, stderr) = pipemeasure(dir.path(), &["man", "pages"], &[]);
+    assert_eq!(code, 0, "{stderr}");
+    let written = std::fs::read_dir(&pages).unwrap().count();
+    assert!(written > 20, "{written} pages");
+    assert!(
+        stdout.contains(&format!("{written} man pages written")),
+        "{stdout}"
+    );
+}
+
 /// The man pages committed in `man/` are what the command line's definitions generate now
 /// (`pipemeasure man man` regenerates them after a change to the options).
 #[test]

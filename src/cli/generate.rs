@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::CommandFactory;
-use pipemeasure::io::atomic::write_bytes_atomic;
+use pipemeasure::io::atomic::{StagedFile, check_writable};
 
 use super::Cli;
 
@@ -44,22 +44,26 @@ pub fn completions(args: &CompletionsArgs) -> Result<()> {
         .context("writing the completion script")
 }
 
-/// Writes the man page of `cmd` (named `name`) and of each of its subcommands into `dir`;
-/// returns the files written.
-fn write_pages(cmd: &clap::Command, name: &str, dir: &Path) -> Result<Vec<PathBuf>> {
+/// Stages the man page of `cmd` (named `name`) and of each of its subcommands in `dir`
+/// (written beside their destinations; removed again if dropped uncommitted).
+fn stage_pages(cmd: &clap::Command, name: &str, dir: &Path) -> Result<Vec<StagedFile>> {
     let cmd = cmd.clone().name(name.to_string());
     let mut page = Vec::new();
     clap_mangen::Man::new(cmd.clone())
         .render(&mut page)
         .with_context(|| format!("rendering the man page of {name}"))?;
     let path = dir.join(format!("{name}.1"));
-    write_bytes_atomic(&path, &page).with_context(|| format!("writing {}", path.display()))?;
-    let mut written = vec![path];
+    // A page that could be staged but not moved into place (a folder of its name) is found
+    // before any page is.
+    check_writable(&path)?;
+    let staged = StagedFile::write(&path, |w| std::io::Write::write_all(w, &page))
+        .with_context(|| format!("writing {}", path.display()))?;
+    let mut written = vec![staged];
     for sub in cmd.get_subcommands().filter(|s| !s.is_hide_set()) {
         if sub.get_name() == "help" {
             continue;
         }
-        written.extend(write_pages(
+        written.extend(stage_pages(
             sub,
             &format!("{name}-{}", sub.get_name()),
             dir,
@@ -68,17 +72,20 @@ fn write_pages(cmd: &clap::Command, name: &str, dir: &Path) -> Result<Vec<PathBu
     Ok(written)
 }
 
-/// Writes every man page into `args.dir`.
+/// Writes every man page into `args.dir`: all of them or, when one cannot be written, none
+/// (each is staged beside its destination first).
 pub fn man(args: &ManArgs) -> Result<()> {
     std::fs::create_dir_all(&args.dir)
         .with_context(|| format!("creating {}", args.dir.display()))?;
     let mut cmd = command();
     cmd.build();
-    let written = write_pages(&cmd, "pipemeasure", &args.dir)?;
-    outln!(
-        "{} man pages written to {}",
-        written.len(),
-        args.dir.display()
-    );
+    let staged = stage_pages(&cmd, "pipemeasure", &args.dir)?;
+    let count = staged.len();
+    for page in staged {
+        let path = page.destination().to_path_buf();
+        page.commit()
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    outln!("{count} man pages written to {}", args.dir.display());
     Ok(())
 }
