@@ -22,7 +22,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::cloud::{BOX_RUN, Cloud, plane_of};
+use super::cloud::{BOX_RUN, Cloud, Shell, plane_of};
 use crate::robust::upper_median;
 
 /// A cylinder: the axis through `point` along unit `direction`, and the radius.
@@ -318,15 +318,20 @@ fn near(cloud: &Cloud, runs: &[&[usize]], cyl: &Cylinder, floor: f64) -> Vec<usi
     let t = max_threshold(cloud, floor);
     // A box whose points' axis distances (the centre's ± the half diagonal) all miss
     // `radius ± t` is skipped whole.
+    let shell = Shell {
+        point: cyl.point,
+        direction: cyl.direction,
+        inner: cyl.radius - t,
+        outer: cyl.radius + t,
+        along: None,
+    };
     let parts: Vec<Vec<usize>> = runs
         .par_chunks(16)
         .map(|chunk| {
             let mut part = Vec::new();
             for run in chunk {
                 let (centre, half) = cloud.run_box(run[0] / BOX_RUN);
-                let rho = (centre - cyl.point).cross(&cyl.direction).norm();
-                let slack = half + 1e-9 * (1.0 + rho);
-                if rho - slack > cyl.radius + t || rho + slack < cyl.radius - t {
+                if !shell.may_meet(&centre, half) {
                     continue;
                 }
                 part.extend(

@@ -14,9 +14,8 @@
 //! does not, though a tank's shell may stand just beyond a nozzle's flange).
 
 use nalgebra::Vector3;
-use rayon::prelude::*;
 
-use super::super::cloud::{BOX_RUN, Cloud};
+use super::super::cloud::{Cloud, Shell};
 use super::super::cylinder::{Cylinder, filled_arc};
 
 /// Shortest gap in the inliers along the axis that can hold a flange (m): a single class-150
@@ -156,32 +155,22 @@ fn proud_points(cloud: &Cloud, cyl: &Cylinder, windows: &[[f64; 2]]) -> Vec<Prou
         let k = windows.partition_point(|w| w[1] < t);
         k < windows.len() && windows[k][0] <= t
     };
-    let runs = cloud.len().div_ceil(BOX_RUN);
-    (0..runs)
-        .into_par_iter()
-        .with_min_len(64)
-        .flat_map_iter(|run| {
-            let (centre, half) = cloud.run_box(run);
-            let w = centre - local.point;
-            let t = w.dot(&local.direction);
-            let rho = (w - local.direction * t).norm();
-            let skip = rho - half > hi || rho + half < lo || t + half < t0 || t - half > t1;
-            let range = if skip {
-                0..0
-            } else {
-                run * BOX_RUN..((run + 1) * BOX_RUN).min(cloud.len())
-            };
-            range.filter_map(move |pos| {
-                let w = cloud.point_at(pos) - local.point;
-                let t = w.dot(&local.direction);
-                let off = w - local.direction * t;
-                let rho = off.norm();
-                ((lo..=hi).contains(&rho) && in_window(t)).then(|| Proud {
-                    t,
-                    u: off / rho,
-                    proud: rho - cyl.radius,
-                })
-            })
+    let shell = Shell {
+        point: local.point,
+        direction: local.direction,
+        inner: lo,
+        outer: hi,
+        along: Some((t0, t1)),
+    };
+    cloud.scan_shell(&shell, |pos| {
+        let w = cloud.point_at(pos) - local.point;
+        let t = w.dot(&local.direction);
+        let off = w - local.direction * t;
+        let rho = off.norm();
+        ((lo..=hi).contains(&rho) && in_window(t)).then(|| Proud {
+            t,
+            u: off / rho,
+            proud: rho - cyl.radius,
         })
-        .collect()
+    })
 }

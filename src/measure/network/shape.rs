@@ -15,7 +15,7 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::super::cloud::{BOX_RUN, Cloud, NORMAL_NEIGHBOURS, smallest_eigen};
+use super::super::cloud::{Cloud, NORMAL_NEIGHBOURS, Shell, smallest_eigen};
 use super::super::cylinder::{Cylinder, filled_arc};
 use super::components::CellMap;
 use crate::robust::{MAD_TO_SIGMA, upper_median};
@@ -114,28 +114,20 @@ impl Patches {
             let e = local.residual(&q);
             (e.abs() <= reach).then_some((q, e, (t0..=t1).contains(&t)))
         };
-        // Runs of the Z-order whose box misses the shell are skipped whole.
-        let runs = cloud.len().div_ceil(BOX_RUN);
-        let points: Vec<Vec<(Vector3<f64>, f64, bool)>> = (0..runs)
-            .into_par_iter()
-            .with_min_len(64)
-            .map(|run| {
-                let (centre, half) = cloud.run_box(run);
-                let rho = (centre - local.point).cross(&local.direction).norm();
-                if rho - half > local.radius + reach || rho + half < local.radius - reach {
-                    return Vec::new();
-                }
-                (run * BOX_RUN..((run + 1) * BOX_RUN).min(cloud.len()))
-                    .filter_map(|pos| near(cloud.point_at(pos)))
-                    .collect()
-            })
-            .collect();
+        let shell = Shell {
+            point: local.point,
+            direction: local.direction,
+            inner: local.radius - reach,
+            outer: local.radius + reach,
+            along: Some((t0 - radius, t1 + radius)),
+        };
+        let points = cloud.scan_shell(&shell, |pos| near(cloud.point_at(pos)));
         let mut cells: CellMap<Vec<Vector3<f64>>> = CellMap::default();
         let mut flanks = Flanks {
             band_m: band,
             ..Flanks::default()
         };
-        for (q, e, within) in points.into_iter().flatten() {
+        for (q, e, within) in points {
             if e.abs() <= band {
                 cells.entry(cell_of(&q, radius)).or_default().push(q);
                 flanks.band += usize::from(within);
