@@ -22,7 +22,8 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::Serialize;
 
-use super::cloud::{BOX_RUN, Cloud, Shell, plane_of};
+use super::cloud::{BOX_RUN, Cloud, plane_of};
+use super::shell::Shell;
 use crate::robust::upper_median;
 
 /// A cylinder: the axis through `point` along unit `direction`, and the radius.

@@ -13,6 +13,7 @@ pub mod nominal;
 pub mod pipe;
 pub mod scale;
 pub mod scan;
+pub mod shell;
 pub mod site;
 pub mod targets;
 mod zorder;

@@ -15,8 +15,9 @@
 
 use nalgebra::Vector3;
 
-use super::super::cloud::{Cloud, Shell};
+use super::super::cloud::Cloud;
 use super::super::cylinder::{Cylinder, filled_arc};
+use super::super::shell::Shell;
 
 /// Shortest gap in the inliers along the axis that can hold a flange (m): a single class-150
 /// flange on a 1-inch pipe is 14 mm thick, its shadow adds to that.

@@ -15,8 +15,9 @@
 use nalgebra::Vector3;
 use rayon::prelude::*;
 
-use super::super::cloud::{Cloud, NORMAL_NEIGHBOURS, Shell, smallest_eigen};
+use super::super::cloud::{Cloud, NORMAL_NEIGHBOURS, smallest_eigen};
 use super::super::cylinder::{Cylinder, filled_arc};
+use super::super::shell::Shell;
 use super::components::CellMap;
 use crate::robust::{MAD_TO_SIGMA, upper_median};
 
