@@ -86,6 +86,22 @@ pub struct Choice {
     pub alternatives: Vec<usize>,
 }
 
+impl Choice {
+    /// The same choice with each segment index `k` renamed `rename(k)` (the site report names
+    /// segments by their ids).
+    #[must_use]
+    pub fn renamed(&self, rename: impl Fn(usize) -> usize) -> Choice {
+        Choice {
+            segment: rename(self.segment),
+            by: self.by.clone(),
+            distance_m: self.distance_m,
+            runner_up: self.runner_up.map(|(k, d)| (rename(k), d)),
+            ambiguous: self.ambiguous,
+            alternatives: self.alternatives.iter().map(|&k| rename(k)).collect(),
+        }
+    }
+}
+
 /// A frame's optical axis meets a pipe when it passes within the pipe's radius plus this
 /// fraction of the distance from the camera (3°: a hand's aim at the pipe it films).
 pub const AIM_ERROR_FRACTION: f64 = 0.05;

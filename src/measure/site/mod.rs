@@ -18,7 +18,7 @@ mod uncertainty;
 mod workspace;
 
 pub use error::{SiteError, SiteInput};
-pub use report::{AxisOut, ChoiceOut, PipeOut, ScaleTargetOut, SiteReport, choice_message};
+pub use report::{AxisOut, PipeOut, ScaleTargetOut, SiteReport, choice_message};
 pub use retriangulate::{RetriangulatedCloud, retriangulate_cloud};
 pub use scaling::{Ray, SiteScale, row_targets, scale_from_targets};
 pub use uncertainty::POSE_SAMPLES;

@@ -84,8 +84,9 @@ pub struct SiteReport {
     pub nominal: crate::measure::NominalSize,
     /// Pipe segments the search found, the measured one included.
     pub segments_found: usize,
-    /// How the measured segment (the pipe of interest) was chosen.
-    pub pipe_of_interest: ChoiceOut,
+    /// How the measured segment (the pipe of interest) was chosen, segments named by their
+    /// ids (their entries in `pipes`).
+    pub pipe_of_interest: crate::measure::Choice,
     /// Every pipe segment found, the pipe of interest among them.
     pub pipes: Vec<PipeOut>,
     /// `tls` when the cloud was moved into the TLS frame by the targets' similarity, `scaled`
@@ -121,25 +122,6 @@ pub struct SiteReport {
     pub reference_inliers: Option<usize>,
     /// Radius minus the reference radius (m).
     pub accuracy_m: Option<f64>,
-}
-
-/// How the pipe of interest was chosen, in the report.
-#[derive(Clone, Debug, Serialize)]
-pub struct ChoiceOut {
-    /// The chosen segment's id (its entry in `pipes`).
-    pub segment: usize,
-    /// `near`, `frames` (with the votes) or `most-inliers` (with the reason).
-    #[serde(flatten)]
-    pub by: ChosenBy,
-    /// Distance from the `--near` point to its axis (m).
-    pub distance_m: Option<f64>,
-    /// The next candidate's id and its distance from the `--near` point (m), its votes or its
-    /// inliers.
-    pub runner_up: Option<(usize, f64)>,
-    /// Whether other segments are as good a choice.
-    pub ambiguous: bool,
-    /// Those segments' ids.
-    pub alternatives: Vec<usize>,
 }
 
 /// One pipe segment of the measured cloud, in the report.
@@ -203,20 +185,6 @@ pub(super) fn pipe_reports(m: &PipeMeasurement, references: &[Option<Reference>]
             }
         })
         .collect()
-}
-
-/// The choice in the report: indices turned into segment ids.
-fn choice_out(m: &PipeMeasurement) -> ChoiceOut {
-    let c = &m.choice;
-    let id = |k: usize| m.segments[k].id;
-    ChoiceOut {
-        segment: id(c.segment),
-        by: c.by.clone(),
-        distance_m: c.distance_m,
-        runner_up: c.runner_up.map(|(k, d)| (id(k), d)),
-        ambiguous: c.ambiguous,
-        alternatives: c.alternatives.iter().map(|&k| id(k)).collect(),
-    }
 }
 
 /// What the log says of the choice of the pipe of interest.
@@ -339,7 +307,7 @@ pub(super) fn report(
         length_m: m.segment.length_m,
         nominal: m.segment.nominal.clone(),
         segments_found: m.segments_found,
-        pipe_of_interest: choice_out(m),
+        pipe_of_interest: m.choice.renamed(|k| m.segments[k].id),
         pipes: Vec::new(),
         frame: if scaling.in_tls_frame() {
             "tls"
