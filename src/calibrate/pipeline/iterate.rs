@@ -36,25 +36,41 @@ pub(super) struct LoopInput<'a> {
     pub log: &'a dyn Fn(&str),
 }
 
+/// What the loop leaves when it ends ([`Loop::run`]).
+pub(super) struct LoopOutcome {
+    /// How it ended.
+    pub termination: Termination,
+    /// The frames' cameras: the last intrinsics and adjusted poses.
+    pub cameras: Vec<FrameCamera>,
+    /// One record per iteration.
+    pub iterations: Vec<LoopRecord>,
+    /// The last good adjustment and its frames (model order).
+    pub last: Option<(Selected, Vec<usize>)>,
+    /// The alternation of the term selection, when it alternated.
+    pub alternation: Option<TermAlternation>,
+    /// What the report must say.
+    pub warnings: Vec<String>,
+}
+
 /// The loop's state between iterations.
 pub(super) struct Loop<'a> {
     fixed: LoopInput<'a>,
     /// The frames' cameras: the current intrinsics and the last adjusted poses.
-    pub cameras: Vec<FrameCamera>,
+    cameras: Vec<FrameCamera>,
     pairs: Vec<PairGeometry>,
     /// The selection's settings: the rolling shutter is dropped from them when the neighbours
     /// cannot determine the readout time.
     selection: SelectionConfig,
     previous: Option<Signature>,
     seen: Vec<Signature>,
-    pub iterations: Vec<LoopRecord>,
+    iterations: Vec<LoopRecord>,
     /// The last good adjustment and its frames (model order).
-    pub last: Option<(Selected, Vec<usize>)>,
+    last: Option<(Selected, Vec<usize>)>,
     /// The model of each iteration, and the one held once the selection alternated.
     term_history: Vec<ModelChoice>,
     held: Option<ModelChoice>,
-    pub alternation: Option<TermAlternation>,
-    pub warnings: Vec<String>,
+    alternation: Option<TermAlternation>,
+    warnings: Vec<String>,
 }
 
 impl<'a> Loop<'a> {
@@ -81,8 +97,8 @@ impl<'a> Loop<'a> {
     }
 
     /// Runs iterations until one ends the loop or the cap is reached; logs and warns why it
-    /// stopped.
-    pub(super) fn run(&mut self) -> Result<Termination, CalibrateError> {
+    /// stopped, and returns what it leaves.
+    pub(super) fn run(mut self) -> Result<LoopOutcome, CalibrateError> {
         let mut termination = None;
         for iteration in 1..=self.fixed.config.max_iterations {
             if let Some(t) = self.iterate(iteration)? {
@@ -95,7 +111,14 @@ impl<'a> Loop<'a> {
             camera_moves: camera_moves(&self.iterations),
         });
         self.announce(&termination);
-        Ok(termination)
+        Ok(LoopOutcome {
+            termination,
+            cameras: self.cameras,
+            iterations: self.iterations,
+            last: self.last,
+            alternation: self.alternation,
+            warnings: self.warnings,
+        })
     }
 
     /// The log line and the warning of each way the loop ends.

@@ -41,7 +41,7 @@ use crate::io::colmap::Reconstruction;
 use calibration::{
     check_by_jackknife, finish, intrinsic_covariance, intrinsics_of, residual_warning,
 };
-use iterate::{Loop, LoopInput};
+use iterate::{Loop, LoopInput, LoopOutcome};
 use problems::neighbour_links;
 
 /// How to calibrate.
@@ -211,7 +211,7 @@ pub fn calibrate(
         .flatten()
         .map(|n| n.dt_s.abs())
         .fold(0.0, f64::max);
-    let mut run = Loop::new(
+    let outcome = Loop::new(
         LoopInput {
             input,
             config,
@@ -223,16 +223,16 @@ pub fn calibrate(
         },
         start.cameras,
         start.pairs,
-    );
-    let termination = run.run()?;
-    let Loop {
+    )
+    .run()?;
+    let LoopOutcome {
+        termination,
         cameras,
         iterations,
         last,
         alternation,
         warnings,
-        ..
-    } = run;
+    } = outcome;
     let Some((mut selected, frames)) = last else {
         return Err(CalibrateError::Input("no iteration ran".into()));
     };
