@@ -241,6 +241,20 @@ pub fn validate_device_name(name: &str) -> Result<(), ProfileError> {
     }
 }
 
+/// The profile `--device name` finds from the working folder when it is not the file
+/// `written` (a `./calibrations/NAME.json` here, or one in `$PIPEMEASURE_CALIBRATIONS`, found
+/// before a profile just written to the user's data folder); `None` when it is that file or
+/// the name finds nothing. Paths are compared as the file system resolves them.
+#[must_use]
+pub fn shadowing(name: &str, written: &Path) -> Option<Located> {
+    let found = find_device(name).ok()?;
+    let same = match (found.path.canonicalize(), written.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => found.path == written,
+    };
+    (!same).then_some(found)
+}
+
 /// Finds `--device`: a path, or a name in the search folders, then among the presets.
 ///
 /// # Errors

@@ -19,7 +19,7 @@ pub mod lookup;
 pub use calibrated::{CalibrationSource, HIGH_CORRELATION};
 pub use lookup::{
     Listed, Located, Origin, PRESETS, ProfileFolder, available_devices, default_profile_folder,
-    devices_in, find_device, list_profiles, load_device, load_located, search_folders,
+    devices_in, find_device, list_profiles, load_device, load_located, search_folders, shadowing,
     user_data_folder, validate_device_name,
 };
 

@@ -112,15 +112,7 @@ pub(super) fn print_outcome(o: &Outcome<'_>) -> Result<()> {
 /// written to the default folder (a `./calibrations/NAME.json` here, or
 /// `$PIPEMEASURE_CALIBRATIONS`'s).
 fn shadow_note(device: &str, written: &std::path::Path) {
-    let Ok(found) = pipemeasure::profile::find_device(device) else {
-        return;
-    };
-    let same = |a: &std::path::Path, b: &std::path::Path| match (a.canonicalize(), b.canonicalize())
-    {
-        (Ok(a), Ok(b)) => a == b,
-        _ => a == b,
-    };
-    if !same(&found.path, written) {
+    if let Some(found) = pipemeasure::profile::shadowing(device, written) {
         eprintln!(
             "note: from this folder `--device {device}` finds {} ({}) first; the new profile is \
              found from folders without one",
