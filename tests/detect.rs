@@ -93,10 +93,10 @@ fn defocused_lab_targets_are_found() {
 
 /// A lab whose walls are sprayed with blobs of the targets' sizes, dark and light, lumpy and
 /// mottled (`LabConfig::wall_texture` speckled; unlike the plaster every other simulated lab
-/// has): every target is still found, with the centre accuracy of a plain wall. (Blobs whose
-/// levels are as far apart as ink and paper, most of 2–4 px that blur into ellipses, are found
-/// too: no test on a disc's own pixels tells them from a target that small; docs/reference.md,
-/// "What it cannot tell apart".)
+/// has): every target is still found, with the centre accuracy of a plain wall. (Blobs too
+/// small to show their levels, most of 2–4 px that blur into ellipses, and larger ones whose
+/// levels are as far apart as ink and paper are found too: no test on a disc's own pixels
+/// tells them from a target; docs/reference.md, "What it cannot tell apart".)
 #[test]
 fn speckled_walls_hide_no_target() {
     let cfg = EvalConfig {

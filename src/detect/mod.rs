@@ -98,7 +98,10 @@ pub struct DetectConfig {
     /// Largest ratio of the fitted step's darker level to its lighter one, default
     /// [`MAX_LEVEL_RATIO`]: a target is ink on paper (or paper on ink), and the two differ
     /// several-fold even in gamma-encoded grey levels; the blotches, stains and shadows of a
-    /// wall that pass every shape test differ from the wall around them by far less.
+    /// wall that pass every shape test differ from the wall around them by far less. Judged
+    /// only on a disc with an interior (deeper than two edge widths and 1.5 px, where
+    /// [`DetectedEllipse::interior_spread`] is measured): a smaller or more blurred disc never
+    /// shows its levels, and the step's fitted levels are then an extrapolation.
     pub max_level_ratio: f64,
     /// Only discs of this polarity (`None`: both), default `None`. A calibration grid of black
     /// dots is found with `Some(Dark)`, as OpenCV's blob detector does by default; white things
@@ -123,7 +126,9 @@ pub const STRAY_POLARITY_SHARE: f64 = 0.05;
 /// at most 0.24 in its stills and 0.36 in its hand-held H.264 video (blurred dots of 2.5 px
 /// among them); the simulated lab's printed targets at most 0.30; the false detections on
 /// the speckled simulated lab's paint blotches (albedo shifts of up to 0.35 on a 0.55 wall)
-/// 0.04–0.80, half of them above 0.42 (`tests/detect.rs`).
+/// 0.04–0.80, half of them above 0.42 (`tests/detect.rs`). Without an interior the fitted
+/// levels are no measure: white discs of b ≈ 3 px blurred by σ 2 px on the simulated lab's
+/// narrow black plates fit at 0.50–0.53.
 pub const MAX_LEVEL_RATIO: f64 = 0.5;
 
 /// Fewest detections in a set before a polarity is judged stray: a handful of targets says
@@ -560,7 +565,7 @@ fn validate(
     if cand.polarity * contrast < config.min_contrast
         || e.b < config.min_resolution * look.step.width_px
         || look.step.residual > config.max_step_residual
-        || dark > config.max_level_ratio * light
+        || (look.interior_spread.is_some() && dark > config.max_level_ratio * light)
         || look.ring_spread > config.max_ring_spread + noise_share
         || look
             .interior_spread
