@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use clap::CommandFactory;
-use pipemeasure::io::atomic::{StagedFile, check_writable};
+use pipemeasure::io::atomic::StagedFile;
 
 use super::Cli;
 
@@ -53,9 +53,7 @@ fn stage_pages(cmd: &clap::Command, name: &str, dir: &Path) -> Result<Vec<Staged
         .render(&mut page)
         .with_context(|| format!("rendering the man page of {name}"))?;
     let path = dir.join(format!("{name}.1"));
-    // A page that could be staged but not moved into place (a folder of its name) is found
-    // before any page is.
-    check_writable(&path)?;
+    // Staging refuses a page whose place is taken by a folder, before any page is committed.
     let staged = StagedFile::write(&path, |w| std::io::Write::write_all(w, &page))
         .with_context(|| format!("writing {}", path.display()))?;
     let mut written = vec![staged];

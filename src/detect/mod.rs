@@ -13,8 +13,8 @@
 //! support all round (≥ 90 % of the normals), one polarity, a fit residual without the
 //! harmonics a non-ellipse has, and grey levels that are a printed disc: a blurred step between
 //! two flat levels across the edge, levels several-fold apart (ink on paper), a uniform
-//! interior, a uniform surround, a disc resolved against its blur; size and axis-ratio limits, fully inside the frame → overlapping detections
-//! resolved (the better supported one stays).
+//! interior, a uniform surround, a disc resolved against its blur; size and axis-ratio limits,
+//! fully inside the frame → overlapping detections resolved (the better supported one stays).
 //!
 //! Works on black discs on white and white discs on black alike; a target cut by the frame or
 //! occluded loses support on part of its edge and is rejected rather than fitted badly.

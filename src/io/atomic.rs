@@ -110,11 +110,13 @@ impl StagedFile {
     ///
     /// # Errors
     ///
-    /// [`WriteError`] naming the destination; nothing is left behind.
+    /// [`WriteError`] naming the destination, which is refused at once when it is a folder
+    /// (the file could be staged but never moved into place); nothing is left behind.
     pub fn write<F>(dest: &Path, write: F) -> Result<Self, WriteError>
     where
         F: FnOnce(&mut BufWriter<File>) -> std::io::Result<()>,
     {
+        refuse_folder(dest)?;
         remove_stale_temporaries(dest);
         let staged = StagedFile {
             dest: dest.to_path_buf(),
@@ -139,11 +141,12 @@ impl StagedFile {
     ///
     /// # Errors
     ///
-    /// [`WriteError`] naming the destination; nothing is left behind.
+    /// As [`StagedFile::write`].
     pub fn write_at<F>(dest: &Path, write: F) -> Result<Self, WriteError>
     where
         F: FnOnce(&Path) -> std::io::Result<()>,
     {
+        refuse_folder(dest)?;
         remove_stale_temporaries(dest);
         let staged = StagedFile {
             dest: dest.to_path_buf(),
@@ -270,6 +273,17 @@ impl Drop for StagedDir {
     }
 }
 
+/// A file cannot be written where a folder is.
+fn refuse_folder(path: &Path) -> Result<(), WriteError> {
+    if path.is_dir() {
+        return Err(WriteError::new(
+            path,
+            std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a folder"),
+        ));
+    }
+    Ok(())
+}
+
 /// Checks, before any work, that a file can be written at `path`: it is not a folder, its folder
 /// exists, and a new file can be created there (a probe file is created and removed).
 ///
@@ -277,12 +291,7 @@ impl Drop for StagedDir {
 ///
 /// [`WriteError`] naming `path` with the reason.
 pub fn check_writable(path: &Path) -> Result<(), WriteError> {
-    if path.is_dir() {
-        return Err(WriteError::new(
-            path,
-            std::io::Error::new(std::io::ErrorKind::IsADirectory, "is a folder"),
-        ));
-    }
+    refuse_folder(path)?;
     let parent = parent_of(path);
     if !parent.is_dir() {
         return Err(WriteError::new(
@@ -350,6 +359,25 @@ mod tests {
         .unwrap_err();
         assert!(err.to_string().contains("out.txt"));
         assert_eq!(fs::read_to_string(&path).unwrap(), "old");
+        assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    /// A destination that is a folder is refused when the file is staged, not when it is
+    /// committed: nothing is written, and the caller's other staged files are never moved in.
+    #[test]
+    fn staging_onto_a_folder_is_refused_at_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("taken.1");
+        fs::create_dir(&path).unwrap();
+        let mut called = false;
+        let err = StagedFile::write(&path, |_| {
+            called = true;
+            Ok(())
+        })
+        .unwrap_err();
+        assert!(!called);
+        assert!(err.to_string().contains("taken.1"), "{err}");
+        assert!(StagedFile::write_at(&path, |_| Ok(())).is_err());
         assert_eq!(fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
